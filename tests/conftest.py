@@ -1,0 +1,17 @@
+"""Shared pytest set-up: the library on sys.path and the shared Itokawa data."""
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "workflow"))
+
+
+@pytest.fixture(scope="session")
+def shared_itokawa_dir():
+    """The shared Itokawa shape files (../shared/data/itokawa beside the repository); skip if absent."""
+    itokawa_dir = Path(__file__).parents[2] / "shared" / "data" / "itokawa"
+    if not itokawa_dir.is_dir():
+        pytest.skip(f"shared Itokawa data not found at {itokawa_dir}")
+    return itokawa_dir
