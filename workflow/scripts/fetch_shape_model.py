@@ -1,0 +1,7 @@
+"""Rule script: download the shape model named by ``shape_model`` from the PDS archive and verify it."""
+
+from asteroid_photometry.logs import setup_logging
+from asteroid_photometry.shape import download_shape_model
+
+setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
+download_shape_model(snakemake.params.model_name, snakemake.output.model)  # noqa: F821
