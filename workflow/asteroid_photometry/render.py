@@ -255,7 +255,7 @@ def render_image_set(
         vertices_world = vertices_m @ pose[:3, :3].T  # camera-aligned, centred on the body
         params["body.vertex_positions"] = mi.Float(vertices_world.astype(np.float32).ravel())
         params.update()
-        image = mi.render(scene, seed=seed * 100_003 + index, spp=int(spp))
+        image = mi.render(scene, seed=(seed * 1009 + index) % 2**32, spp=int(spp))
         name = f"image_{index:03d}.exr"
         mi.Bitmap(image).write(str(out_dir / name))
         images.append({"index": index, "file": name, "body_to_camera": pose.tolist()})

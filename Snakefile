@@ -1,0 +1,22 @@
+# Asteroid photometry: reproduce Table 1 of Koizumi et al. (see README.md).
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/shape.smk"
+include: "workflow/rules/render.smk"
+include: "workflow/rules/observe.smk"
+include: "workflow/rules/fit.smk"
+include: "workflow/rules/tabulate.smk"
+
+
+rule all:
+    input:
+        rules.tabulate_table1.output,
+        rules.plot_table1.output,
+        rules.tabulate_runtime.output,

@@ -1,0 +1,136 @@
+"""How close the estimates come to the truth, and the tables that say so.
+
+Per set and estimator one summary row (the columns of ``table1.csv``):
+``light_deg_*`` is the angle between the light and the direction towards
+the camera, as in the paper; ``light_dir_err_deg`` the full angle between
+the estimated and the true light vectors; ``*_est`` the mean of the
+per-point estimates, as in the paper; ``*_rmse`` their root-mean-square
+error over points, which the paper did not report.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .estimate import FitResult, angle_between_deg, light_angle_deg
+
+TABLE1_COLUMNS = [
+    "set_id", "method", "light_deg_true", "light_deg_est", "light_deg_err", "light_dir_err_deg",
+    "albedo_true", "albedo_est", "albedo_err", "albedo_rmse", "k_true", "k_est", "k_err", "k_rmse",
+    "n_points", "n_obs", "fit_seconds", "converged",
+]
+
+
+@dataclass(frozen=True)
+class Truth:
+    light_dir_cam: np.ndarray
+    albedo: float
+    minnaert_k: float
+
+
+def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
+    fitted = np.isfinite(result.albedo) & np.isfinite(result.minnaert_k)
+    if not fitted.any():
+        raise ValueError(f"set {set_id}, {result.method}: no point was fitted (too few observations?)")
+    albedo, minnaert_k = result.albedo[fitted], result.minnaert_k[fitted]
+    light_true = float(light_angle_deg(truth.light_dir_cam))
+    light_est = float(light_angle_deg(result.light_dir_cam))
+    row = {
+        "set_id": set_id,
+        "method": result.method,
+        "light_deg_true": light_true,
+        "light_deg_est": light_est,
+        "light_deg_err": light_est - light_true,
+        "light_dir_err_deg": float(angle_between_deg(result.light_dir_cam, truth.light_dir_cam)),
+        "albedo_true": truth.albedo,
+        "albedo_est": float(albedo.mean()),
+        "albedo_err": float(albedo.mean() - truth.albedo),
+        "albedo_rmse": float(np.sqrt(np.mean((albedo - truth.albedo) ** 2))),
+        "k_true": truth.minnaert_k,
+        "k_est": float(minnaert_k.mean()),
+        "k_err": float(minnaert_k.mean() - truth.minnaert_k),
+        "k_rmse": float(np.sqrt(np.mean((minnaert_k - truth.minnaert_k) ** 2))),
+        "n_points": int(fitted.sum()),
+        "n_obs": int(result.n_obs),
+        "fit_seconds": float(result.fit_seconds),
+        "converged": bool(result.success),
+    }
+    return row
+
+
+def collect_table1(summary_paths) -> pd.DataFrame:
+    rows = [json.loads(Path(path).read_text()) for path in summary_paths]
+    table = pd.DataFrame(rows, columns=TABLE1_COLUMNS)
+    return table.sort_values(["method", "light_deg_true", "k_true", "albedo_true"], kind="stable").reset_index(drop=True)
+
+
+def with_paper(table: pd.DataFrame, paper: pd.DataFrame) -> pd.DataFrame:
+    """Our rows joined with the paper's Table 1 values of the same set (NaN where the paper has none)."""
+    paper = paper.rename(columns={c: f"paper_{c}" for c in ("light_deg_est", "albedo_est", "k_est")})
+    keys = ["light_deg_true", "albedo_true", "k_true"]
+    merged = table.copy()
+    for key in keys:
+        merged[key] = merged[key].round(6)
+        paper[key] = paper[key].round(6)
+    return merged.merge(paper, on=keys, how="left")
+
+
+def _fmt(value, digits):
+    return "" if pd.isna(value) else f"{value:.{digits}f}"
+
+
+def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
+    """The readable Table 1: ours beside the paper's, one section per estimator."""
+    merged = with_paper(table, paper)
+    lines = ["# Table 1: estimates on the true geometry, ours beside the paper's", ""]
+    lines += [
+        "Estimates are means over the points (as in the paper); RMSE is per point. "
+        "Light angles in degrees; `dir err` is the full angle between the estimated and true light vectors.",
+        "",
+    ]
+    for method, group in merged.groupby("method", sort=False):
+        lines += [f"## {method}", ""]
+        lines += [
+            "| light | albedo | k | light est (paper) | light est (ours) | dir err (ours) | albedo est (paper) | albedo est (ours) "
+            "| albedo RMSE | k est (paper) | k est (ours) | k RMSE | points | obs | fit s |",
+            "|" + "---|" * 15,
+        ]
+        for _, r in group.iterrows():
+            lines.append(
+                f"| {r.light_deg_true:g} | {r.albedo_true:g} | {r.k_true:g} | {_fmt(r.paper_light_deg_est, 4)} | {_fmt(r.light_deg_est, 5)} "
+                f"| {_fmt(r.light_dir_err_deg, 5)} | {_fmt(r.paper_albedo_est, 3)} | {_fmt(r.albedo_est, 5)} | {_fmt(r.albedo_rmse, 5)} "
+                f"| {_fmt(r.paper_k_est, 3)} | {_fmt(r.k_est, 5)} | {_fmt(r.k_rmse, 5)} | {r.n_points} | {r.n_obs} | {_fmt(r.fit_seconds, 2)} |"
+            )
+        worst = group.loc[:, ["light_deg_err", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse"]].abs().max()
+        lines += ["", "Worst over the sets (absolute): " + ", ".join(f"{name} {value:.2g}" for name, value in worst.items()), ""]
+    paper_worst = (paper["light_deg_est"] - paper["light_deg_true"]).abs().max()
+    lines += [
+        f"The paper's worst: light {paper_worst:.3f} deg, albedo {(paper['albedo_est'] - paper['albedo_true']).abs().max():.3f}, "
+        f"k {(paper['k_est'] - paper['k_true']).abs().max():.3f}.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def runtime_table(benchmark_paths) -> pd.DataFrame:
+    """One row per benchmarked job: stage, job (wildcards), seconds, peak memory."""
+    rows = []
+    for path in benchmark_paths:
+        path = Path(path)
+        parts = path.parts[path.parts.index("benchmarks") + 1 :] if "benchmarks" in path.parts else path.parts[-2:]
+        bench = pd.read_csv(path, sep="\t")
+        rows.append({
+            "stage": parts[0],
+            "job": "/".join(parts[1:]).removesuffix(".tsv"),
+            "seconds": float(bench["s"].iloc[-1]),
+            "max_rss_mb": float(bench["max_rss"].iloc[-1]) if "max_rss" in bench else np.nan,
+        })
+    table = pd.DataFrame(rows, columns=["stage", "job", "seconds", "max_rss_mb"])
+    totals = table.groupby("stage", as_index=False).agg(seconds=("seconds", "sum"), max_rss_mb=("max_rss_mb", "max"))
+    totals["job"] = "TOTAL"
+    return pd.concat([table, totals[["stage", "job", "seconds", "max_rss_mb"]]], ignore_index=True)

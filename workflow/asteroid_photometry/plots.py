@@ -1,0 +1,70 @@
+"""Figures of Table 1: our errors beside the paper's, per set, and per-point error distributions."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from .metrics import with_paper  # noqa: E402
+
+QUANTITIES = {
+    "light": ("light_deg_est", "light_deg_true", "light angle error (deg)"),
+    "albedo": ("albedo_est", "albedo_true", "albedo error (mean over points)"),
+    "minnaert_k": ("k_est", "k_true", "Minnaert k error (mean over points)"),
+}
+
+
+def _set_labels(group: pd.DataFrame) -> list[str]:
+    return [f"{r.light_deg_true:g}/{r.albedo_true:g}/{r.k_true:g}" for r in group.itertuples()]
+
+
+def plot_errors_against_paper(table: pd.DataFrame, paper: pd.DataFrame, quantity: str, out_path) -> None:
+    """|error| per set on a log scale: each of our estimators and the paper's."""
+    estimate, truth, label = QUANTITIES[quantity]
+    merged = with_paper(table, paper)
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    markers = iter("os^Dv")
+    reference = None
+    for method, group in merged.groupby("method", sort=False):
+        x = np.arange(len(group))
+        error = (group[estimate] - group[truth]).abs().clip(lower=1e-9)
+        ax.semilogy(x, error, marker=next(markers), linestyle="none", label=f"ours: {method}")
+        if reference is None:
+            reference = group
+    if reference is not None:
+        x = np.arange(len(reference))
+        paper_error = (reference[f"paper_{estimate}"] - reference[truth]).abs().clip(lower=1e-9)
+        ax.semilogy(x, paper_error, marker="x", color="k", linestyle="none", label="paper (Koizumi et al.)")
+        ax.set_xticks(x, _set_labels(reference), rotation=60, ha="right", fontsize=8)
+    ax.set_xlabel("set: light angle (deg) / albedo / k")
+    ax.set_ylabel(f"|{label}|")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=120)
+    plt.close(fig)
+
+
+def plot_per_point_errors(estimates: dict[str, dict], out_path, method: str = "koizumi_lm") -> None:
+    """Box plots of per-point albedo and k errors, one box per set, for ``method``."""
+    chosen = {key: value for key, value in estimates.items() if key[1] == method}
+    labels = [set_id for set_id, _ in chosen]
+    fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+    for ax, (field, truth_field, name) in zip(axes, [("albedo", "albedo_true", "albedo"), ("minnaert_k", "minnaert_k_true", "k")]):
+        data = []
+        for value in chosen.values():
+            error = value[field] - value[truth_field]
+            data.append(error[np.isfinite(error)])
+        ax.boxplot(data, showfliers=True, flierprops={"markersize": 2})
+        ax.axhline(0.0, color="k", linewidth=0.5)
+        ax.set_ylabel(f"per-point {name} error")
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xticks(np.arange(1, len(labels) + 1), labels, rotation=60, ha="right", fontsize=7)
+    axes[0].set_title(f"Per-point errors of {method}")
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,159 @@
+"""File-level entry points of the workflow's stages, one per rule script.
+
+Each function reads its inputs from files, calls the library and writes its
+declared outputs, nothing else; the rule scripts in ``workflow/scripts`` are
+shims over these, so a stage can be run and debugged outside Snakemake.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import cameras, estimate, metrics, observe, render
+from .experiment import ImageSet
+
+log = logging.getLogger(__name__)
+
+
+def load_shape_npz(path) -> dict:
+    with np.load(path) as data:
+        return {name: data[name] for name in data.files}
+
+
+def write_imaging_geometry(shape_npz, out_json, n_images, image_size, camera_distance_km, view_latitude_deg) -> None:
+    shape = load_shape_npz(shape_npz)
+    body_radius_m = float(np.linalg.norm(shape["vertices_m"], axis=1).max())
+    geometry = cameras.make_imaging_geometry(n_images, image_size, camera_distance_km, view_latitude_deg, body_radius_m)
+    log.info(
+        "%d images of %d px, camera %.3f km from the centre, field of view %.3f deg, %.3f m per pixel at the centre",
+        n_images, image_size, camera_distance_km, geometry.intrinsics.fov_x_deg,
+        geometry.camera_distance_m / geometry.intrinsics.focal_px,
+    )
+    Path(out_json).write_text(geometry.to_json())
+
+
+def load_imaging_geometry(path) -> cameras.ImagingGeometry:
+    return cameras.ImagingGeometry.from_json(Path(path).read_text())
+
+
+def render_set(shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, mitsuba_variant, out_dir, threads=None) -> None:
+    shape = load_shape_npz(shape_npz)
+    geometry = load_imaging_geometry(cameras_json)
+    if threads:
+        import drjit as dr
+
+        dr.set_thread_count(int(threads))
+    render.render_image_set(
+        shape["vertices_m"], shape["faces"], geometry,
+        albedo=image_set.albedo, minnaert_k=image_set.minnaert_k,
+        light_dir_cam=cameras.light_dir_cam(image_set.light_angle_deg),
+        spp=samples_per_pixel, out_dir=out_dir, seed=image_set.seed, variant=mitsuba_variant,
+    )
+
+
+def write_observation_geometry(shape_npz, cameras_json, light_angle_deg, thresholds: dict, out_npz) -> None:
+    shape = load_shape_npz(shape_npz)
+    geometry = load_imaging_geometry(cameras_json)
+    obs_geometry = observe.observation_geometry(
+        shape["vertices_m"], shape["faces"], shape["centroids_m"], shape["normals"], geometry,
+        cameras.light_dir_cam(light_angle_deg),
+        min_cos_incidence=thresholds["min_cos_incidence"],
+        min_cos_emission=thresholds["min_cos_emission"],
+        min_observations_per_point=thresholds["min_observations_per_point"],
+    )
+    obs_geometry.save(out_npz)
+
+
+def read_rendered_images(render_dir) -> tuple[dict, list[np.ndarray]]:
+    render_dir = Path(render_dir)
+    frames_path = render_dir / "frames.json"
+    if not frames_path.exists():
+        raise FileNotFoundError(f"{frames_path} is missing: {render_dir} is not a complete rendered set")
+    frames = json.loads(frames_path.read_text())
+    images = [render.read_image(render_dir / image["file"]) for image in frames["images"]]
+    return frames, images
+
+
+def write_observations(geometry_npz, render_dir, out_npz) -> None:
+    """The brightness of every observation, sampled from the rendered images, with its geometry."""
+    obs_geometry = observe.ObservationGeometry.load(geometry_npz)
+    frames, images = read_rendered_images(render_dir)
+    if max(obs_geometry.image_index, default=-1) >= len(images):
+        raise ValueError(f"{geometry_npz} refers to image {obs_geometry.image_index.max()} but {render_dir} has {len(images)} images")
+    brightness = observe.sample_brightness(obs_geometry, images)
+    dark = int((brightness <= 0).sum())
+    if dark:
+        log.warning("%d of %d observations are dark in the rendered image although the geometry says lit", dark, len(brightness))
+    log.info("%d observations of %d points from %d images", len(brightness), len(np.unique(obs_geometry.point_index)), len(images))
+    np.savez_compressed(
+        out_npz,
+        brightness=brightness,
+        light_dir_cam_true=np.asarray(frames["light_dir_cam"]),
+        **{name: getattr(obs_geometry, name) for name in obs_geometry.__dataclass_fields__},
+    )
+
+
+def load_observations(path) -> tuple[estimate.Observations, dict]:
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    obs = estimate.Observations(
+        point_index=arrays["point_index"], normal_cam=arrays["normal_cam"], view_cam=arrays["view_cam"],
+        brightness=arrays["brightness"], n_points=int(arrays["n_points"]),
+    )
+    return obs, arrays
+
+
+def run_estimator(obs: estimate.Observations, method: str, image_set: ImageSet) -> estimate.FitResult:
+    if method == "koizumi_lm":
+        return estimate.fit_koizumi_lm(obs)
+    if method == "iwano_linear":
+        return estimate.fit_iwano_linear(obs, minnaert_k=image_set.minnaert_k)
+    raise ValueError(f"config key 'estimators': unknown estimator {method!r} (known: koizumi_lm, iwano_linear)")
+
+
+def fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, out_summary, set_id: str) -> None:
+    obs, arrays = load_observations(observations_npz)
+    result = run_estimator(obs, method, image_set)
+    log.info("%s: %s after %d iterations, %.2f s: %s", method, "converged" if result.success else "NOT converged", result.n_iterations, result.fit_seconds, result.message)
+    truth = metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=image_set.albedo, minnaert_k=image_set.minnaert_k)
+    row = metrics.summary_row(set_id, result, truth)
+    log.info("summary: %s", json.dumps(row))
+    np.savez_compressed(
+        out_estimates, light_dir_cam=result.light_dir_cam, albedo=result.albedo, minnaert_k=result.minnaert_k,
+        albedo_true=np.full(obs.n_points, image_set.albedo), minnaert_k_true=np.full(obs.n_points, image_set.minnaert_k),
+    )
+    Path(out_summary).write_text(json.dumps(row, indent=1))
+
+
+def write_table1(summary_paths, paper_csv, out_csv, out_markdown) -> None:
+    table = metrics.collect_table1(summary_paths)
+    paper = pd.read_csv(paper_csv)
+    table.to_csv(out_csv, index=False)
+    Path(out_markdown).write_text(metrics.table1_markdown(table, paper))
+    log.info("Table 1: %d rows", len(table))
+
+
+def write_table1_plots(table_csv, estimate_paths, outputs) -> None:
+    from . import plots
+
+    table = pd.read_csv(table_csv)
+    paper = pd.read_csv(Path(__file__).resolve().parents[1] / "resources" / "paper_table1.csv")
+    for quantity in ("light", "albedo", "minnaert_k"):
+        plots.plot_errors_against_paper(table, paper, quantity, outputs[quantity])
+    estimates = {}
+    for path in estimate_paths:
+        path = Path(path)
+        with np.load(path) as data:
+            estimates[(path.parent.name, path.stem)] = {name: data[name] for name in data.files}
+    plots.plot_per_point_errors(estimates, outputs["per_point"])
+
+
+def write_runtime_table(benchmark_paths, out_csv) -> None:
+    table = metrics.runtime_table(benchmark_paths)
+    table.to_csv(out_csv, index=False)
+    log.info("runtime per stage (s): %s", table[table.job == "TOTAL"].set_index("stage")["seconds"].round(1).to_dict())

@@ -1,0 +1,51 @@
+# Stage 5: tables, plots and the runtime summary.
+
+
+rule tabulate_table1:
+    input:
+        summaries=expand("results/fits/{set_id}/{method}.json", set_id=SETS, method=ESTIMATORS),
+        paper=Path(workflow.basedir) / "workflow" / "resources" / "paper_table1.csv",
+    output:
+        csv=report("results/tables/table1.csv", caption="../report/table1.rst", category="Tables"),
+        markdown="results/tables/table1.md",
+    log:
+        "logs/tabulate_table1.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/tabulate_table1.py"
+
+
+rule plot_table1:
+    input:
+        table=rules.tabulate_table1.output.csv,
+        estimates=expand("results/fits/{set_id}/{method}.npz", set_id=SETS, method=ESTIMATORS),
+    output:
+        light=report("results/plots/light_angle.png", caption="../report/plots.rst", category="Plots"),
+        albedo=report("results/plots/albedo.png", caption="../report/plots.rst", category="Plots"),
+        minnaert_k=report("results/plots/minnaert_k.png", caption="../report/plots.rst", category="Plots"),
+        per_point=report("results/plots/per_point_errors.png", caption="../report/per_point.rst", category="Plots"),
+    log:
+        "logs/plot_table1.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/plot_table1.py"
+
+
+rule tabulate_runtime:
+    input:
+        benchmarks=lambda wildcards: [
+            *expand("benchmarks/render/{set_id}.tsv", set_id=SETS),
+            *expand("benchmarks/observation_geometry/{light_tag}.tsv", light_tag=LIGHT_TAGS),
+            *expand("benchmarks/observe/{set_id}.tsv", set_id=SETS),
+            *expand("benchmarks/fit/{set_id}/{method}.tsv", set_id=SETS, method=ESTIMATORS),
+        ],
+    output:
+        csv=report("results/tables/runtime.csv", caption="../report/runtime.rst", category="Tables"),
+    log:
+        "logs/tabulate_runtime.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/tabulate_runtime.py"

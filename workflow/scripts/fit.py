@@ -1,0 +1,14 @@
+"""Rule script: run one estimator on one set and summarise its errors."""
+
+from asteroid_photometry.logs import setup_logging
+from asteroid_photometry.stages import fit_set
+
+setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
+fit_set(
+    snakemake.input.observations,  # noqa: F821
+    snakemake.params.image_set,  # noqa: F821
+    snakemake.wildcards.method,  # noqa: F821
+    snakemake.output.estimates,  # noqa: F821
+    snakemake.output.summary,  # noqa: F821
+    set_id=snakemake.wildcards.set_id,  # noqa: F821
+)

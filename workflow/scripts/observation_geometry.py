@@ -1,0 +1,13 @@
+"""Rule script: the pure-pixel observations of every facet for one light angle."""
+
+from asteroid_photometry.logs import setup_logging
+from asteroid_photometry.stages import write_observation_geometry
+
+setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
+write_observation_geometry(
+    snakemake.input.shape,  # noqa: F821
+    snakemake.input.cameras,  # noqa: F821
+    snakemake.params.light_angle_deg,  # noqa: F821
+    snakemake.params.observations,  # noqa: F821
+    snakemake.output.npz,  # noqa: F821
+)

@@ -1,0 +1,7 @@
+"""Rule script: sample each observation's brightness from the rendered images of one set."""
+
+from asteroid_photometry.logs import setup_logging
+from asteroid_photometry.stages import write_observations
+
+setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
+write_observations(snakemake.input.geometry, snakemake.input.images, snakemake.output.npz)  # noqa: F821

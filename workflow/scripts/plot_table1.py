@@ -1,0 +1,7 @@
+"""Rule script: plots of our errors beside the paper's, and per-point error distributions."""
+
+from asteroid_photometry.logs import setup_logging
+from asteroid_photometry.stages import write_table1_plots
+
+setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
+write_table1_plots(snakemake.input.table, snakemake.input.estimates, snakemake.output)  # noqa: F821

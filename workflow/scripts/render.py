@@ -1,0 +1,15 @@
+"""Rule script: render the images of one set with the Mitsuba Minnaert BSDF."""
+
+from asteroid_photometry.logs import setup_logging
+from asteroid_photometry.stages import render_set
+
+setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
+render_set(
+    snakemake.input.shape,  # noqa: F821
+    snakemake.input.cameras,  # noqa: F821
+    snakemake.params.image_set,  # noqa: F821
+    snakemake.params.samples_per_pixel,  # noqa: F821
+    snakemake.params.mitsuba_variant,  # noqa: F821
+    snakemake.output.images,  # noqa: F821
+    threads=snakemake.threads,  # noqa: F821
+)

@@ -1,0 +1,7 @@
+"""Rule script: the benchmarks of every heavy job, tabulated."""
+
+from asteroid_photometry.logs import setup_logging
+from asteroid_photometry.stages import write_runtime_table
+
+setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
+write_runtime_table(snakemake.input.benchmarks, snakemake.output.csv)  # noqa: F821
