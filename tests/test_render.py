@@ -1,0 +1,108 @@
+"""The Mitsuba Minnaert renderer against closed forms: a sphere, and a flat facet."""
+
+import numpy as np
+import pytest
+from scipy.ndimage import binary_dilation
+
+from asteroid_photometry import cameras, observe, render
+
+
+@pytest.fixture(scope="module")
+def variant():
+    return render.setup_mitsuba("auto")
+
+
+def closed_form_sphere(radius_m, distance_m, image_size, fov_deg, albedo, minnaert_k, light, supersample=6):
+    """Pixel averages of the Minnaert sphere image, from ray-sphere intersections on a sub-pixel grid."""
+    focal = 0.5 * image_size / np.tan(np.radians(fov_deg) / 2)
+    intrinsics = cameras.Intrinsics(image_size, image_size, focal, image_size / 2, image_size / 2)
+    offsets = (np.arange(supersample) + 0.5) / supersample
+    pixel = np.arange(image_size)
+    u = (pixel[None, :, None, None] + offsets[None, None, None, :]) * np.ones((image_size, 1, supersample, 1))
+    v = (pixel[:, None, None, None] + offsets[None, None, :, None]) * np.ones((1, image_size, 1, supersample))
+    d = cameras.pixel_rays_cam(intrinsics, u, v)
+    centre = np.array([0.0, 0.0, distance_m])
+    along = d @ centre
+    disc = along**2 - (centre @ centre - radius_m**2)
+    hit = disc > 0
+    t = along - np.sqrt(np.where(hit, disc, 0.0))
+    normal = (d * t[..., None] - centre) / radius_m
+    cos_i = normal @ light
+    cos_o = -(normal * d).sum(-1)
+    lit = hit & (cos_i > 0) & (cos_o > 0)
+    b = np.where(lit, albedo * np.clip(cos_i, 1e-12, None) ** minnaert_k * np.clip(cos_o, 1e-12, None) ** (minnaert_k - 1), 0.0)
+    interior = (lit & (cos_i > 0.2) & (cos_o > 0.2)).all(axis=(2, 3))
+    return b.mean(axis=(2, 3)), b.std(axis=(2, 3)), interior
+
+
+@pytest.mark.parametrize("light_deg, albedo, minnaert_k", [(0.0, 0.5, 0.7), (10.0, 0.7, 1.0), (30.0, 0.6, 0.85)])
+def test_sphere_matches_closed_form(variant, light_deg, albedo, minnaert_k):
+    light = cameras.light_dir_cam(light_deg)
+    args = dict(radius_m=100.0, distance_m=5000.0, image_size=96, fov_deg=2.6)
+    image = render.render_sphere(**args, albedo=albedo, minnaert_k=minnaert_k, light_dir_cam=light, spp=64)
+    # (spp must match the value used below)
+    spp = 64
+    expected, spread, interior = closed_form_sphere(**args, albedo=albedo, minnaert_k=minnaert_k, light=light)
+    assert interior.sum() > 2000
+    difference = np.abs(image - expected)[interior]
+    # Rendering noise: the pixel is the mean of spp random samples of a brightness
+    # that varies across the pixel, so its error is about spread / sqrt(spp).
+    z = difference / (spread[interior] / np.sqrt(spp) + 1e-7)
+    assert np.mean(z) < 1.2  # 0.8 for Gaussian noise
+    assert np.percentile(z, 99.9) < 6
+    # The background and the unlit side are black (away from the lit pixels' edge).
+    near_lit = binary_dilation(expected > 0, iterations=2)
+    assert np.all(image[~near_lit] == 0)
+    # The check can fail: a different k gives a clearly different image.
+    wrong, _, _ = closed_form_sphere(**args, albedo=albedo, minnaert_k=minnaert_k - 0.1, light=light)
+    assert np.abs(image - wrong)[interior].mean() > 20 * difference.mean()
+
+
+def test_flat_facets_are_exact_on_pure_pixels_and_images_are_not_mirrored(variant, tmp_path):
+    """An off-axis tetrahedron: pure pixels hold exactly the Minnaert value, where our projection says."""
+    vertices = np.array([[0.0, 0.0, 0.0], [60.0, 0.0, 0.0], [0.0, 60.0, 0.0], [0.0, 0.0, 60.0]]) + [40.0, 25.0, -30.0]
+    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    tri = vertices[faces]
+    centroids = tri.mean(axis=1)
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    geometry = cameras.make_imaging_geometry(n_images=3, image_size=128, camera_distance_km=2.0, view_latitude_deg=20.0, body_radius_m=130.0)
+    light = cameras.light_dir_cam(20.0)
+    albedo, minnaert_k = 0.6, 0.75
+    render.render_image_set(vertices, faces, geometry, albedo, minnaert_k, light, spp=8, out_dir=tmp_path)
+    images = [render.read_image(tmp_path / f"image_{i:03d}.exr") for i in range(3)]
+    obs = observe.observation_geometry(vertices, faces, centroids, normals, geometry, light, 0.05, 0.05, 1)
+    assert len(obs.point_index) >= 5
+    brightness = observe.sample_brightness(obs, images)
+    cos_i = obs.normal_cam @ light
+    cos_o = (obs.normal_cam * obs.view_cam).sum(axis=1)
+    expected = albedo * cos_i**minnaert_k * cos_o ** (minnaert_k - 1)
+    assert np.allclose(brightness, expected, rtol=1e-3)  # perspective varies cos_o across a pixel by ~1e-3
+    # Every pure pixel of every lit facet, not only the one kept per facet and image.
+    raycaster = observe.BodyRaycaster(vertices, faces)
+    n_checked = 0
+    for index, image in enumerate(images):
+        corners = observe.corner_facet_ids(raycaster, geometry, index)
+        top_left = corners[:-1, :-1]
+        pure = (top_left >= 0) & (top_left == corners[1:, :-1]) & (top_left == corners[:-1, 1:]) & (top_left == corners[1:, 1:])
+        rows, cols = np.nonzero(pure)
+        normal_cam = normals[top_left[rows, cols]] @ geometry.body_to_camera[index, :3, :3].T
+        view_cam = -cameras.pixel_rays_cam(geometry.intrinsics, cols + 0.5, rows + 0.5)
+        cos_i, cos_o = normal_cam @ light, (normal_cam * view_cam).sum(axis=1)
+        lit = (cos_i > 0.05) & (cos_o > 0.05)
+        expected = albedo * cos_i[lit] ** minnaert_k * cos_o[lit] ** (minnaert_k - 1)
+        assert np.allclose(image[rows[lit], cols[lit]], expected, rtol=1e-3)  # perspective varies cos_o across a pixel by ~1e-3
+        n_checked += int(lit.sum())
+    assert n_checked > 200
+    # Every lit pixel lies inside the projected bounding box of the mesh, per image.
+    for index, image in enumerate(images):
+        pose = geometry.body_to_camera[index]
+        uv = cameras.project(vertices @ pose[:3, :3].T + pose[:3, 3], geometry.intrinsics)
+        rows, cols = np.nonzero(image > 0)
+        assert cols.min() >= np.floor(uv[:, 0].min()) and cols.max() <= np.ceil(uv[:, 0].max())
+        assert rows.min() >= np.floor(uv[:, 1].min()) and rows.max() <= np.ceil(uv[:, 1].max())
+
+
+def test_unknown_variant_is_refused():
+    with pytest.raises(RuntimeError, match="mitsuba_variant"):
+        render.choose_variant("no_such_variant")
