@@ -1,13 +1,10 @@
 # Helpers shared by the rules: config validation, the image sets, paths.
-import os
 import sys
 from pathlib import Path
 
+# The library, for the Snakefile itself (rule scripts find it through
+# workflow/scripts/_workflow_path.py).
 WORKFLOW_DIR = Path(workflow.basedir) / "workflow"
-# Rule scripts run in their own Python processes: give them the library.
-os.environ["PYTHONPATH"] = os.pathsep.join(
-    [str(WORKFLOW_DIR)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-)
 sys.path.insert(0, str(WORKFLOW_DIR))
 
 from asteroid_photometry.config import validate_config, ConfigError

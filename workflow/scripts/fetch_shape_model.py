@@ -1,5 +1,6 @@
 """Rule script: download the shape model named by ``shape_model`` from the PDS archive and verify it."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.shape import download_shape_model
 

@@ -1,5 +1,6 @@
 """Rule script: run one estimator on one set and summarise its errors."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.stages import fit_set
 

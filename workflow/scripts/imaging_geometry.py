@@ -1,5 +1,6 @@
 """Rule script: intrinsics and per-image body-to-camera poses as JSON."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.stages import write_imaging_geometry
 

@@ -1,5 +1,6 @@
 """Rule script: the pure-pixel observations of every facet for one light angle."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.stages import write_observation_geometry
 

@@ -1,5 +1,6 @@
 """Rule script: sample each observation's brightness from the rendered images of one set."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.stages import write_observations
 

@@ -1,5 +1,6 @@
 """Rule script: plots of our errors beside the paper's, and per-point error distributions."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.stages import write_table1_plots
 

@@ -1,5 +1,6 @@
 """Rule script: verify the shape model and write its facet table (centroids, outward normals, areas) as .npz."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.shape import write_prepared_model
 

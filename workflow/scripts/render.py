@@ -1,5 +1,6 @@
 """Rule script: render the images of one set with the Mitsuba Minnaert BSDF."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.stages import render_set
 

@@ -1,5 +1,6 @@
 """Rule script: Table 1 as CSV and as Markdown beside the paper's values."""
 
+import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.logs import setup_logging
 from asteroid_photometry.stages import write_table1
 

@@ -1,0 +1,102 @@
+"""The Snakemake workflow as a whole: lint, a dry run of the full config, an end-to-end run of the small one."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+
+
+def snakemake(*args, cwd=REPO, timeout=600):
+    env = dict(os.environ)
+    return subprocess.run([*SNAKEMAKE, "-s", str(REPO / "Snakefile"), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def shared_dir():
+    path = REPO.parent / "shared" / "data" / "itokawa"
+    if not path.is_dir():
+        pytest.skip(f"{path} is absent: the shape models are read from there")
+    return path
+
+
+def test_lint_is_clean(shared_dir):
+    run = snakemake("--lint", "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / '25143itokawa.tab'}")
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "Congratulations" in run.stdout + run.stderr
+
+
+def test_dry_run_of_the_full_config(shared_dir, tmp_path):
+    run = snakemake("-n", "--cores", "2", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"), "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}")
+    assert run.returncode == 0, run.stdout + run.stderr
+    jobs = {}
+    for line in run.stdout.splitlines():
+        parts = line.split()
+        if len(parts) == 2 and parts[1].isdigit():
+            jobs[parts[0]] = int(parts[1])
+    assert jobs["render"] == 16
+    assert jobs["fit"] == 32
+    assert jobs["observation_geometry"] == 2
+
+
+def test_dry_run_without_local_model_plans_the_download(tmp_path):
+    run = snakemake("-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"))
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "fetch_shape_model" in run.stdout
+
+
+def test_bad_config_is_refused_naming_the_key(tmp_path):
+    run = snakemake("-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"), "--config", "albedoes=[0.5]")
+    assert run.returncode != 0
+    assert "albedoes" in run.stdout + run.stderr
+
+
+@pytest.fixture(scope="module")
+def small_run(shared_dir, tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("small_run")
+    run = snakemake("--cores", "2", "-d", str(workdir), "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / '25143itokawa.tab'}")
+    assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
+    return workdir
+
+
+def test_small_run_writes_every_output(small_run):
+    for name in ["results/tables/table1.csv", "results/tables/table1.md", "results/tables/runtime.csv",
+                 "results/plots/light_angle.png", "results/plots/albedo.png", "results/plots/minnaert_k.png",
+                 "results/plots/per_point_errors.png"]:
+        assert (small_run / name).stat().st_size > 0, name
+    frames = json.loads((small_run / "results/render/light10_albedo0.6_k0.8/frames.json").read_text())
+    assert len(frames["images"]) == 12
+    assert frames["light_dir_cam"][0] > 0
+    assert all((small_run / "results/render/light10_albedo0.6_k0.8" / image["file"]).exists() for image in frames["images"])
+    runtime = pd.read_csv(small_run / "results/tables/runtime.csv")
+    assert set(runtime.stage) == {"render", "observation_geometry", "observe", "fit"}
+
+
+def test_small_run_recovers_the_truth(small_run):
+    table = pd.read_csv(small_run / "results/tables/table1.csv")
+    assert len(table) == 4
+    assert (table.n_points > 300).all()
+    paper_method = table[table.method == "koizumi_lm"]
+    # 12 images of 256 px on the coarse radar mesh: fewer points than the full
+    # run, so a looser light bound; albedo and k are still fitted to ~1e-5.
+    assert (paper_method.light_dir_err_deg < 0.02).all()
+    assert (paper_method.albedo_err.abs() < 1e-3).all()
+    assert (paper_method.k_err.abs() < 1e-3).all()
+    assert (paper_method.albedo_rmse < 5e-3).all()
+    assert (paper_method.k_rmse < 5e-3).all()
+    assert paper_method.converged.all()
+    baseline = table[table.method == "iwano_linear"]
+    assert (baseline.light_dir_err_deg < 0.01).all()
+    assert (baseline.albedo_err.abs() < 1e-3).all()
+
+
+def test_rerun_has_nothing_to_do(small_run, shared_dir):
+    run = snakemake("-n", "--cores", "1", "-d", str(small_run), "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / '25143itokawa.tab'}")
+    assert run.returncode == 0
+    assert "Nothing to be done" in run.stdout + run.stderr
