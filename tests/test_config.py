@@ -212,6 +212,7 @@ def test_defaults_are_filled_in_the_returned_and_the_given_config():
         "min_cos_incidence": 0.1,
         "min_cos_emission": 0.3,
         "min_observations_per_point": 4,
+        "pixel_selection": "pure",
     }
     assert config == filled  # updated in place, like snakemake.utils.validate
 

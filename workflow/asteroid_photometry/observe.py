@@ -21,6 +21,11 @@ ray casting with open3d on the body-frame mesh:
   three vertices towards the Sun all escape;
 - not grazing: ``cos_i >= min_cos_incidence`` and ``cos_o >= min_cos_emission``.
 
+With ``pixel_selection: projection`` the pixel is instead the one that
+contains the centroid's projection, whenever the ray through its centre
+hits the facet, mixed or not, as the paper did; it exists to measure what
+mixed pixels cost (README, "Mixed pixels").
+
 The geometry of the observations (which point, which pixel, the normal and
 view direction in the camera frame) depends on the light only through the
 shadows, so it is computed once per light angle and shared by the sets.
@@ -125,6 +130,27 @@ def nearest_pure_pixels(raycaster: BodyRaycaster, geometry: ImagingGeometry, ima
     return facets[chosen], rows[chosen], cols[chosen]
 
 
+def projection_pixels(raycaster: BodyRaycaster, geometry: ImagingGeometry, image: int, centroids_m: np.ndarray):
+    """For every facet visible at its centroid's projection: that pixel, pure or mixed (the paper's way).
+
+    A facet counts as visible when the ray through the centre of the pixel
+    containing its centroid's projection hits it first. Returns ``(facets, rows, cols)``.
+    """
+    intrinsics = geometry.intrinsics
+    pose = geometry.body_to_camera[image]
+    uv = project(centroids_m @ pose[:3, :3].T + pose[:3, 3], intrinsics)
+    cols, rows = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+    inside = (cols >= 0) & (cols < intrinsics.width) & (rows >= 0) & (rows < intrinsics.height)
+    facets = np.flatnonzero(inside)
+    directions_body = pixel_rays_cam(intrinsics, cols[facets] + 0.5, rows[facets] + 0.5) @ pose[:3, :3]
+    centre_body = camera_centres_body(geometry.body_to_camera[image : image + 1])[0]
+    seen = raycaster.first_hit_facet(centre_body, directions_body) == facets
+    return facets[seen], rows[facets[seen]], cols[facets[seen]]
+
+
+PIXEL_SELECTIONS = {"pure": nearest_pure_pixels, "projection": projection_pixels}
+
+
 def facet_unshadowed(raycaster: BodyRaycaster, vertices_m, faces, centroids_m, normals, facets, light_dir_body) -> np.ndarray:
     """Whether ``facets`` are entirely in sunlight: no cast shadow at the centroid or near the vertices."""
     corners = vertices_m[faces[facets]]  # (n, 3, 3)
@@ -145,20 +171,32 @@ def observation_geometry(
     min_cos_incidence: float = 0.1,
     min_cos_emission: float = 0.1,
     min_observations_per_point: int = 4,
+    pixel_selection: str = "pure",
 ) -> ObservationGeometry:
-    """The pure-pixel observations of every facet centroid in every image (see module docstring)."""
+    """The observations of every facet centroid in every image (see module docstring).
+
+    ``pixel_selection`` is ``pure`` (the default, exact) or ``projection``
+    (the pixel of the centroid's projection, mixed or not).
+    """
+    if pixel_selection not in PIXEL_SELECTIONS:
+        raise ValueError(f"config key 'observations.pixel_selection': {pixel_selection!r} is not one of {sorted(PIXEL_SELECTIONS)}")
+    select_pixels = PIXEL_SELECTIONS[pixel_selection]
     raycaster = BodyRaycaster(vertices_m, faces)
     intrinsics = geometry.intrinsics
     n_facets = len(faces)
     kept = {name: [] for name in ("point_index", "image_index", "pixel_row", "pixel_col", "normal_cam", "view_cam")}
-    counts = dict(pure=0, facing=0, lit=0)
+    counts = dict(selected=0, facing=0, lit=0)
     for image, pose in enumerate(geometry.body_to_camera):
         rotation, translation = pose[:3, :3], pose[:3, 3]
-        facets, row, col = nearest_pure_pixels(raycaster, geometry, image, centroids_m)
-        counts["pure"] += len(facets)
+        facets, row, col = select_pixels(raycaster, geometry, image, centroids_m)
+        counts["selected"] += len(facets)
         normals_cam = normals[facets] @ rotation.T
-        # The pixel averages the facet over its footprint: its view direction is that of its centre.
-        view_cam = -pixel_rays_cam(intrinsics, col + 0.5, row + 0.5)
+        if pixel_selection == "pure":
+            # The pixel averages the facet over its footprint: its view direction is that of its centre.
+            view_cam = -pixel_rays_cam(intrinsics, col + 0.5, row + 0.5)
+        else:
+            centroids_cam = centroids_m[facets] @ rotation.T + translation
+            view_cam = -centroids_cam / np.linalg.norm(centroids_cam, axis=1, keepdims=True)
         cos_emission = np.einsum("ij,ij->i", normals_cam, view_cam)
         cos_incidence = normals_cam @ light_dir_cam
         candidate = (cos_emission >= min_cos_emission) & (cos_incidence >= min_cos_incidence)
@@ -180,10 +218,10 @@ def observation_geometry(
     order = np.argsort(arrays["point_index"][enough], kind="stable")
     arrays = {name: values[enough][order] for name, values in arrays.items()}
     log.info(
-        "observations over %d images: %d (facet, image) pairs with a pure pixel, %d of them facing camera and Sun "
+        "observations over %d images: %d (facet, image) pairs with a %s pixel, %d of them facing camera and Sun "
         "(cos >= thresholds), %d without cast shadow, "
         "%d kept on %d points with >= %d observations",
-        geometry.n_images, counts["pure"], counts["facing"], counts["lit"], len(arrays["point_index"]),
+        geometry.n_images, counts["selected"], pixel_selection, counts["facing"], counts["lit"], len(arrays["point_index"]),
         int((per_point >= min_observations_per_point).sum()), min_observations_per_point,
     )
     return ObservationGeometry(n_points=n_facets, **arrays)

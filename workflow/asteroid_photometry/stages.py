@@ -65,6 +65,7 @@ def write_observation_geometry(shape_npz, cameras_json, light_angle_deg, thresho
         min_cos_incidence=thresholds["min_cos_incidence"],
         min_cos_emission=thresholds["min_cos_emission"],
         min_observations_per_point=thresholds["min_observations_per_point"],
+        pixel_selection=thresholds.get("pixel_selection", "pure"),
     )
     obs_geometry.save(out_npz)
 
