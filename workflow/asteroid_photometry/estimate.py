@@ -739,8 +739,11 @@ def fit_koizumi_lm(
         point 2x2 blocks, Schur complement on the 2x2 light block).
         ``"least_squares"``: ``scipy.optimize.least_squares(method="trf",
         tr_solver="lsmr", x_scale="jac")`` with the analytic sparse Jacobian;
-        slower and less accurate at this size (see the module tests and the
-        benchmark notes), kept as an independent check.
+        kept as an independent check. Measured on 50,000 points x 20
+        observations, noiseless, 2 cores: block_lm 0.4-0.9 s, least_squares
+        2-10 s, both recovering light, albedo and k to ~1e-15. With noise
+        (sigma 0.005) the two agree to ~5e-9 and block_lm ends nearer the
+        optimum (scaled gradient 1e-11 against 4e-9), LSMR being inexact.
     ftol, xtol, gtol, max_nfev
         Stopping rules with least_squares' meaning. ``max_nfev`` defaults to
         200 for block_lm and 100 * n_params capped at 2000 for least_squares.
