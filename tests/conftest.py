@@ -6,6 +6,8 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "workflow"))
+# Rule scripts import _workflow_path from their own directory, as under Snakemake.
+sys.path.insert(1, str(Path(__file__).parents[1] / "workflow" / "scripts"))
 
 
 @pytest.fixture(scope="session")
