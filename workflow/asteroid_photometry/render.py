@@ -11,6 +11,12 @@ sample, so cast shadows are there and inter-reflections are not. The pixel
 filter is a box, so a pixel is the plain average of the radiance over its
 footprint, and a pixel that lies entirely on one flat facet is exact.
 
+Albedo and k are either one value for the whole body (the paper's
+setting) or one value per facet (``surface_maps``). Per-facet values ride
+on the mesh as the face attributes ``face_albedo`` and ``face_minnaert_k``,
+which the BSDF reads at each hit with ``Shape.eval_attribute_1``; the
+scalar path keeps its constants in the BSDF, as before.
+
 Variants: ``cuda_ad_rgb`` where a GPU works, else ``llvm_ad_rgb`` (needs a
 recent LLVM, see README), else ``scalar_rgb`` with a warning in the log: it
 runs the Python BSDF once per sample and is about 100 times slower.
@@ -34,6 +40,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_LLVM_PATHS = ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/aarch64-linux-gnu/libLLVM.so.19.1")
 VARIANT_PREFERENCE = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
+# Face attributes of the mesh that carry per-facet albedo and k.
+ALBEDO_ATTRIBUTE = "face_albedo"
+MINNAERT_K_ATTRIBUTE = "face_minnaert_k"
 
 _PROBE = """
 import mitsuba as mi, drjit as dr, sys
@@ -107,6 +116,8 @@ def register_minnaert_plugin():
             mi.BSDF.__init__(self, props)
             self.albedo = float(props.get("albedo", 0.5))
             self.minnaert_k = float(props.get("minnaert_k", 1.0))
+            # Per facet: read the mesh's face attributes instead of the two constants.
+            self.per_facet = bool(props.get("per_facet", False))
             flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
             self.m_components = [flags]
             self.m_flags = flags
@@ -117,7 +128,12 @@ def register_minnaert_plugin():
             cos_o = mi.Frame3f.cos_theta(si.wi)
             cos_i = mi.Frame3f.cos_theta(wo)
             valid = active & (cos_o > 0.0) & (cos_i > 0.0)
-            value = self.albedo * dr.inv_pi * dr.power(cos_i * cos_o, self.minnaert_k - 1.0) * cos_i
+            if self.per_facet:
+                albedo = si.shape.eval_attribute_1(ALBEDO_ATTRIBUTE, si, valid)
+                minnaert_k = si.shape.eval_attribute_1(MINNAERT_K_ATTRIBUTE, si, valid)
+            else:
+                albedo, minnaert_k = self.albedo, self.minnaert_k
+            value = albedo * dr.inv_pi * dr.power(cos_i * cos_o, minnaert_k - 1.0) * cos_i
             return dr.select(valid, value, 0.0)
 
         def sample(self, ctx, si, sample1, sample2, active):
@@ -145,6 +161,8 @@ def register_minnaert_plugin():
             pass
 
         def to_string(self):
+            if self.per_facet:
+                return f"MinnaertBSDF[albedo={ALBEDO_ATTRIBUTE}, minnaert_k={MINNAERT_K_ATTRIBUTE} (per facet)]"
             return f"MinnaertBSDF[albedo={self.albedo}, minnaert_k={self.minnaert_k}]"
 
     mi.register_bsdf("minnaert", lambda props: MinnaertBSDF(props))
@@ -210,34 +228,87 @@ def scene_dict(geometry: ImagingGeometry, light_dir_cam: np.ndarray, spp: int, b
     }
 
 
-def minnaert_mesh(n_vertices: int, n_faces: int, albedo: float, minnaert_k: float):
-    """An empty Mitsuba mesh with the Minnaert BSDF and flat facet normals (no vertex normals)."""
+def per_facet_parameters(albedo, minnaert_k, n_faces: int):
+    """``None`` when ``albedo`` and ``minnaert_k`` are both scalars; else both as (F,) float64 arrays.
+
+    Each may be a scalar or an array of one value per facet; a scalar beside
+    an array is repeated over the facets.
+    """
+    values = {"albedo": np.asarray(albedo, dtype=np.float64), "minnaert_k": np.asarray(minnaert_k, dtype=np.float64)}
+    if all(value.ndim == 0 for value in values.values()):
+        return None
+    for name, value in values.items():
+        if value.ndim != 0 and value.shape != (n_faces,):
+            raise ValueError(f"{name} must be a scalar or one value per facet, shape ({n_faces},); got shape {value.shape}")
+        if not np.all(np.isfinite(value)) or np.any(value < 0) or (name == "minnaert_k" and np.any(value <= 0)):
+            raise ValueError(f"{name} must be finite and positive (albedo may be 0) on every facet")
+    return tuple(np.broadcast_to(values[name], (n_faces,)).copy() for name in ("albedo", "minnaert_k"))
+
+
+def minnaert_mesh(n_vertices: int, n_faces: int, albedo, minnaert_k):
+    """An empty Mitsuba mesh with the Minnaert BSDF and flat facet normals (no vertex normals).
+
+    ``albedo`` and ``minnaert_k`` are scalars, or one value per facet
+    (``per_facet_parameters``): then they are stored as the mesh's face
+    attributes and the BSDF reads them there.
+    """
     import mitsuba as mi
 
+    per_facet = per_facet_parameters(albedo, minnaert_k, n_faces)
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict({"type": "minnaert", "albedo": float(albedo), "minnaert_k": float(minnaert_k)})
-    return mi.Mesh("body", n_vertices, n_faces, props=props, has_vertex_normals=False)
+    if per_facet is None:
+        props["bsdf"] = mi.load_dict({"type": "minnaert", "albedo": float(albedo), "minnaert_k": float(minnaert_k)})
+    else:
+        props["bsdf"] = mi.load_dict({"type": "minnaert", "per_facet": True})
+    mesh = mi.Mesh("body", n_vertices, n_faces, props=props, has_vertex_normals=False)
+    if per_facet is not None:
+        for attribute, values in zip((ALBEDO_ATTRIBUTE, MINNAERT_K_ATTRIBUTE), per_facet):
+            mesh.add_attribute(attribute, 1, mi.Float(values.astype(np.float32)))
+    return mesh
+
+
+def _parameter_metadata(name: str, value) -> dict:
+    """frames.json entries of one parameter: its value, or ``"per_facet"`` with summary statistics."""
+    value = np.asarray(value, dtype=np.float64)
+    if value.ndim == 0:
+        return {name: float(value)}
+    return {
+        name: "per_facet",
+        f"{name}_mean": float(value.mean()),
+        f"{name}_std": float(value.std()),
+        f"{name}_min": float(value.min()),
+        f"{name}_max": float(value.max()),
+    }
 
 
 def render_image_set(
     vertices_m: np.ndarray,
     faces: np.ndarray,
     geometry: ImagingGeometry,
-    albedo: float,
-    minnaert_k: float,
+    albedo,
+    minnaert_k,
     light_dir_cam: np.ndarray,
     spp: int,
     out_dir: Path,
     seed: int = 0,
     variant: str = "auto",
+    facet_maps_path: Path | None = None,
 ) -> dict:
     """Render every image of one set as a linear float EXR into ``out_dir``; write ``frames.json``.
 
+    ``albedo`` and ``minnaert_k`` are each a scalar (uniform surface) or an
+    array with one value per facet of ``faces`` (``surface_maps.facet_maps``).
     Returns the metadata written to ``frames.json``: per image the file,
-    the body-to-camera pose and the true light direction in the camera frame.
+    the body-to-camera pose and the true light direction in the camera frame;
+    a per-facet parameter is recorded as ``"per_facet"`` with its mean, std,
+    min and max. With ``facet_maps_path`` the per-facet truth (scalars
+    repeated) is also written there as an .npz (``surface_maps.save_facet_maps``)
+    and ``frames.json`` names it under ``facet_maps`` (relative to ``out_dir``
+    when inside it).
     """
     import mitsuba as mi
 
+    per_facet = per_facet_parameters(albedo, minnaert_k, len(faces))  # validate before the slow set-up
     variant = setup_mitsuba(variant)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -260,11 +331,14 @@ def render_image_set(
         mi.Bitmap(image).write(str(out_dir / name))
         images.append({"index": index, "file": name, "body_to_camera": pose.tolist()})
     seconds = time.perf_counter() - started
-    log.info("rendered %d images of %dx%d at %d spp in %.1f s (%s)", len(images), geometry.intrinsics.width, geometry.intrinsics.height, spp, seconds, variant)
+    log.info(
+        "rendered %d images of %dx%d at %d spp in %.1f s (%s, %s albedo and k)", len(images), geometry.intrinsics.width,
+        geometry.intrinsics.height, spp, seconds, variant, "uniform" if per_facet is None else "per-facet",
+    )
 
     metadata = {
-        "albedo": float(albedo),
-        "minnaert_k": float(minnaert_k),
+        **_parameter_metadata("albedo", albedo),
+        **_parameter_metadata("minnaert_k", minnaert_k),
         "light_dir_cam": np.asarray(light_dir_cam, float).tolist(),
         "intrinsics": geometry.intrinsics.to_dict(),
         "samples_per_pixel": int(spp),
@@ -272,6 +346,16 @@ def render_image_set(
         "render_seconds": seconds,
         "images": images,
     }
+    if facet_maps_path is not None:
+        from . import surface_maps
+
+        facet_maps_path = Path(facet_maps_path)
+        albedo_map, k_map = per_facet or (np.full(len(faces), float(albedo)), np.full(len(faces), float(minnaert_k)))
+        surface_maps.save_facet_maps(facet_maps_path, albedo_map, k_map)
+        try:
+            metadata["facet_maps"] = str(facet_maps_path.resolve().relative_to(out_dir.resolve()))
+        except ValueError:
+            metadata["facet_maps"] = str(facet_maps_path)
     (out_dir / "frames.json").write_text(json.dumps(metadata, indent=1))
     return metadata
 
