@@ -40,7 +40,8 @@ def test_deterministic_given_the_generator():
 def test_saturation_and_black_are_clipped():
     sensor = noise.SensorModel(full_well_e=30000, read_noise_e=20, bit_depth=12, radiance_at_full_well=2.0)
     bright = noise.apply_sensor_noise(np.full(1000, 5.0), sensor, np.random.default_rng(0))
-    assert np.all(bright == 2.0)
+    assert np.all(bright == 2.0) and noise.saturated(bright, sensor).all()
+    assert not noise.saturated(noise.apply_sensor_noise(np.full(1000, 1.9), sensor, np.random.default_rng(0)), sensor).any()
     dark = noise.apply_sensor_noise(np.zeros(100000), sensor, np.random.default_rng(0))
     assert dark.min() == 0.0 and dark.max() > 0.0  # read noise, clipped at code 0
     negative = noise.apply_sensor_noise(np.full(10, -1.0), sensor, np.random.default_rng(0))

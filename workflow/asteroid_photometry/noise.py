@@ -29,7 +29,11 @@ is then a fixed bias rather than noise.
 Exposure. With ``radiance_at_full_well = 1`` (the default) the brightest
 pixels of the rendered sets (``b`` about the albedo, at most 0.7 in the
 default config) fill 70 % of the well: nothing saturates, and the exposure
-is the same for every set, as for a real camera.
+is the same for every set, as for a real camera. With ``surface_maps``
+the brightest facets reach albedo 1 (radiance up to about 1.01 on the
+Gaskell model at albedo 0.7 with a 0.2 contrast): a few pixels hit the top
+code. ``saturated`` finds them, to be dropped as a real pipeline would, or
+set ``radiance_at_full_well: 1.25``.
 
 Proposed sweep of ``noise_levels`` (``PROPOSED_NOISE_LEVELS``): one camera
 per decade-ish step in noise, centred on Hayabusa's AMICA. AMICA digitises
@@ -203,3 +207,8 @@ def observation_variance(brightness, sensor: SensorModel):
     brightness = np.asarray(brightness, dtype=np.float64)
     gain = sensor.gain_e_per_radiance
     return np.clip(brightness, 0.0, None) / gain + (sensor.read_noise_e / gain) ** 2 + sensor.quantisation_step**2 / 12.0
+
+
+def saturated(values, sensor: SensorModel) -> np.ndarray:
+    """Where ``apply_sensor_noise``'s output sits at the ADC's top code: the true value is unknown there."""
+    return np.asarray(values) >= sensor.max_code * sensor.electrons_per_dn / sensor.gain_e_per_radiance

@@ -147,7 +147,7 @@ def facet_maps(centroids_m: np.ndarray, spec: dict, seed: int, albedo: float, mi
 
 
 def save_facet_maps(path, albedo: np.ndarray, minnaert_k: np.ndarray, spec: dict | None = None, seed: int | None = None) -> Path:
-    """Write the per-facet truth to ``path`` (.npz): ``albedo``, ``minnaert_k`` (F,), the spec as JSON and the seed."""
+    """Write the per-facet truth to ``path`` (.npz): ``albedo``, ``minnaert_k`` (F,), the spec as JSON and the seed (-1: none)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as handle:  # a handle: np.savez would append .npz to another suffix
@@ -155,7 +155,7 @@ def save_facet_maps(path, albedo: np.ndarray, minnaert_k: np.ndarray, spec: dict
             handle,
             albedo=np.asarray(albedo, dtype=np.float64),
             minnaert_k=np.asarray(minnaert_k, dtype=np.float64),
-            spec_json=np.str_(json.dumps(spec or {"kind": "uniform"}, sort_keys=True)),
+            spec_json=np.str_(json.dumps(spec, sort_keys=True)),  # "null" when not given
             seed=np.int64(-1 if seed is None else seed),
         )
     return path
