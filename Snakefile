@@ -20,3 +20,4 @@ rule all:
         rules.tabulate_table1.output,
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
+        expand("results/tables/{sweep}.csv", sweep=SWEEPS),

@@ -40,8 +40,10 @@ def test_dry_run_of_the_full_config(shared_dir, tmp_path):
         parts = line.split()
         if len(parts) == 2 and parts[1].isdigit():
             jobs[parts[0]] = int(parts[1])
-    assert jobs["render"] == 16
-    assert jobs["fit"] == 32
+    # 16 sets of Table 1, the same 16 with a varying surface, and 3 noise levels of the first 16.
+    assert jobs["render"] == 32
+    assert jobs["add_noise"] == 48
+    assert jobs["fit"] == (16 + 16 + 48) * 2
     assert jobs["observation_geometry"] == 2
 
 
@@ -75,7 +77,9 @@ def test_small_run_writes_every_output(small_run):
     assert frames["light_dir_cam"][0] > 0
     assert all((small_run / "results/render/light10_albedo0.6_k0.8" / image["file"]).exists() for image in frames["images"])
     runtime = pd.read_csv(small_run / "results/tables/runtime.csv")
-    assert set(runtime.stage) == {"render", "observation_geometry", "observe", "fit"}
+    assert set(runtime.stage) == {"render", "add_noise", "observation_geometry", "observe", "fit"}
+    for sweep in ("noise", "surface_maps"):
+        assert (small_run / f"results/tables/{sweep}.md").stat().st_size > 0
 
 
 def test_small_run_recovers_the_truth(small_run):
@@ -94,6 +98,23 @@ def test_small_run_recovers_the_truth(small_run):
     baseline = table[table.method == "iwano_linear"]
     assert (baseline.light_dir_err_deg < 0.01).all()
     assert (baseline.albedo_err.abs() < 1e-3).all()
+
+
+def test_small_run_sweeps(small_run):
+    noisy = pd.read_csv(small_run / "results/tables/noise.csv")
+    assert len(noisy) == 4 and noisy.set_id.str.endswith("_noise-amica12").all()
+    # Noise costs accuracy, but the fit still finds the surface.
+    paper_method = noisy[noisy.method == "koizumi_lm"]
+    assert (paper_method.albedo_rmse > 1e-4).all()
+    assert (paper_method.albedo_err.abs() < 5e-3).all() and (paper_method.k_err.abs() < 5e-3).all()
+    frames = json.loads((small_run / "results/render/light0_albedo0.6_k0.8_noise-amica12/frames.json").read_text())
+    assert frames["sensor"]["bit_depth"] == 12
+    mapped = pd.read_csv(small_run / "results/tables/surface_maps.csv")
+    per_point = mapped[mapped.method == "koizumi_lm"]
+    assert len(per_point) == 2
+    assert (per_point.albedo_rmse <= 0.005).all() and (per_point.k_rmse <= 0.01).all()
+    # One global albedo cannot follow a varying map: the baseline's per-point error is the map's contrast.
+    assert (mapped[mapped.method == "iwano_linear"].albedo_rmse > 0.05).all()
 
 
 def test_rerun_has_nothing_to_do(small_run, shared_dir):

@@ -5,7 +5,9 @@ Per set and estimator one summary row (the columns of ``table1.csv``):
 the camera, as in the paper; ``light_dir_err_deg`` the full angle between
 the estimated and the true light vectors; ``*_est`` the mean of the
 per-point estimates, as in the paper; ``*_rmse`` their root-mean-square
-error over points, which the paper did not report.
+error over points, which the paper did not report. With a spatially varying
+surface the truth is per point: ``*_true`` is then its mean over the fitted
+points and ``*_rmse`` compares each point with its own truth.
 """
 
 from __future__ import annotations
@@ -28,9 +30,11 @@ TABLE1_COLUMNS = [
 
 @dataclass(frozen=True)
 class Truth:
+    """The true light, and the true albedo and k: scalars (uniform) or one value per point."""
+
     light_dir_cam: np.ndarray
-    albedo: float
-    minnaert_k: float
+    albedo: float | np.ndarray
+    minnaert_k: float | np.ndarray
 
 
 def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
@@ -38,6 +42,8 @@ def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
     if not fitted.any():
         raise ValueError(f"set {set_id}, {result.method}: no point was fitted (too few observations?)")
     albedo, minnaert_k = result.albedo[fitted], result.minnaert_k[fitted]
+    albedo_true = np.broadcast_to(truth.albedo, result.albedo.shape)[fitted]
+    k_true = np.broadcast_to(truth.minnaert_k, result.minnaert_k.shape)[fitted]
     light_true = float(light_angle_deg(truth.light_dir_cam))
     light_est = float(light_angle_deg(result.light_dir_cam))
     row = {
@@ -47,14 +53,14 @@ def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
         "light_deg_est": light_est,
         "light_deg_err": light_est - light_true,
         "light_dir_err_deg": float(angle_between_deg(result.light_dir_cam, truth.light_dir_cam)),
-        "albedo_true": truth.albedo,
+        "albedo_true": float(albedo_true.mean()),
         "albedo_est": float(albedo.mean()),
-        "albedo_err": float(albedo.mean() - truth.albedo),
-        "albedo_rmse": float(np.sqrt(np.mean((albedo - truth.albedo) ** 2))),
-        "k_true": truth.minnaert_k,
+        "albedo_err": float(albedo.mean() - albedo_true.mean()),
+        "albedo_rmse": float(np.sqrt(np.mean((albedo - albedo_true) ** 2))),
+        "k_true": float(k_true.mean()),
         "k_est": float(minnaert_k.mean()),
-        "k_err": float(minnaert_k.mean() - truth.minnaert_k),
-        "k_rmse": float(np.sqrt(np.mean((minnaert_k - truth.minnaert_k) ** 2))),
+        "k_err": float(minnaert_k.mean() - k_true.mean()),
+        "k_rmse": float(np.sqrt(np.mean((minnaert_k - k_true) ** 2))),
         "n_points": int(fitted.sum()),
         "n_obs": int(result.n_obs),
         "fit_seconds": float(result.fit_seconds),
@@ -114,6 +120,34 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
         f"k {(paper['k_est'] - paper['k_true']).abs().max():.3f}.",
         "",
     ]
+    return "\n".join(lines)
+
+
+def collect_sweep(summary_paths) -> pd.DataFrame:
+    """The summary rows of a sweep, with every column they have (Table 1's first)."""
+    rows = [json.loads(Path(path).read_text()) for path in summary_paths]
+    table = pd.DataFrame(rows)
+    ordered = [c for c in TABLE1_COLUMNS if c in table] + [c for c in table if c not in TABLE1_COLUMNS]
+    return table[ordered].sort_values(["method", "set_id"], kind="stable").reset_index(drop=True)
+
+
+SWEEP_MARKDOWN_COLUMNS = {
+    "set_id": ("set", None), "light_dir_err_deg": ("light dir err (deg)", 5), "albedo_err": ("albedo err", 5),
+    "albedo_rmse": ("albedo RMSE", 5), "k_err": ("k err", 5), "k_rmse": ("k RMSE", 5), "n_points": ("points", None),
+    "efficiency_albedo": ("eff. albedo", 3), "efficiency_k": ("eff. k", 3), "light_err_sigma": ("light err / sigma", 2),
+}
+
+
+def sweep_markdown(table: pd.DataFrame, sweep: str) -> str:
+    titles = {"noise": "Noise sweep: the sets with sensor noise", "surface_maps": "Spatially varying albedo and k"}
+    lines = [f"# {titles.get(sweep, sweep)}", ""]
+    columns = [c for c in SWEEP_MARKDOWN_COLUMNS if c in table]
+    for method, group in table.groupby("method", sort=False):
+        lines += [f"## {method}", "", "| " + " | ".join(SWEEP_MARKDOWN_COLUMNS[c][0] for c in columns) + " |", "|" + "---|" * len(columns)]
+        for _, row in group.iterrows():
+            cells = [str(row[c]) if SWEEP_MARKDOWN_COLUMNS[c][1] is None else _fmt(row[c], SWEEP_MARKDOWN_COLUMNS[c][1]) for c in columns]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
     return "\n".join(lines)
 
 

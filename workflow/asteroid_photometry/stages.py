@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from . import cameras, estimate, metrics, observe, render
+from . import cameras, estimate, metrics, noise, observe, render, surface_maps
 from .experiment import ImageSet
 
 log = logging.getLogger(__name__)
@@ -41,19 +42,58 @@ def load_imaging_geometry(path) -> cameras.ImagingGeometry:
     return cameras.ImagingGeometry.from_json(Path(path).read_text())
 
 
-def render_set(shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, mitsuba_variant, out_dir, threads=None) -> None:
+FACET_MAPS_FILE = "facet_maps.npz"
+
+
+def render_set(shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, mitsuba_variant, out_dir, threads=None, surface_map: dict | None = None) -> None:
+    """Render one set; with ``surface_map`` (a ``surface_maps`` entry) its per-facet truth goes beside the images."""
     shape = load_shape_npz(shape_npz)
     geometry = load_imaging_geometry(cameras_json)
     if threads:
         import drjit as dr
 
         dr.set_thread_count(int(threads))
+    albedo, minnaert_k, maps_path = image_set.albedo, image_set.minnaert_k, None
+    if surface_map is not None:
+        keys = surface_maps.SPEC_KEYS[surface_map["kind"]]
+        spec = {key: value for key, value in surface_map.items() if key in keys}
+        albedo, minnaert_k = surface_maps.facet_maps(shape["centroids_m"], spec, surface_map.get("seed", 0), image_set.albedo, image_set.minnaert_k)
+        maps_path = Path(out_dir) / FACET_MAPS_FILE
     render.render_image_set(
         shape["vertices_m"], shape["faces"], geometry,
-        albedo=image_set.albedo, minnaert_k=image_set.minnaert_k,
+        albedo=albedo, minnaert_k=minnaert_k,
         light_dir_cam=cameras.light_dir_cam(image_set.light_angle_deg),
         spp=samples_per_pixel, out_dir=out_dir, seed=image_set.seed, variant=mitsuba_variant,
+        facet_maps_path=maps_path,
     )
+
+
+def write_linear_exr(path, image: np.ndarray) -> None:
+    import mitsuba as mi
+
+    if not mi.variant():
+        mi.set_variant("scalar_rgb")
+    mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32)[..., None]).write(str(path))
+
+
+def add_noise_to_set(clean_dir, sensor_entry: dict, seed: int, out_dir) -> None:
+    """The clean set's images as the sensor of ``sensor_entry`` (a ``noise_levels`` entry) records them."""
+    sensor = noise.sensor_from_config(sensor_entry)
+    frames, images = read_rendered_images(clean_dir)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    n_saturated = 0
+    for image, entry in zip(images, frames["images"]):
+        noisy = noise.apply_sensor_noise(image, sensor, rng)
+        n_saturated += int(noise.saturated(noisy, sensor).sum())
+        write_linear_exr(out_dir / entry["file"], noisy)
+    if (Path(clean_dir) / FACET_MAPS_FILE).exists():
+        shutil.copy2(Path(clean_dir) / FACET_MAPS_FILE, out_dir / FACET_MAPS_FILE)
+    frames["sensor"] = sensor.to_dict()
+    frames["noise_seed"] = int(seed)
+    (out_dir / "frames.json").write_text(json.dumps(frames, indent=1))
+    log.info("sensor %s on %d images (seed %d): %d saturated pixels", sensor.to_dict(), len(images), seed, n_saturated)
 
 
 def write_observation_geometry(shape_npz, cameras_json, light_angle_deg, thresholds: dict, out_npz) -> None:
@@ -87,15 +127,33 @@ def write_observations(geometry_npz, render_dir, out_npz) -> None:
     if max(obs_geometry.image_index, default=-1) >= len(images):
         raise ValueError(f"{geometry_npz} refers to image {obs_geometry.image_index.max()} but {render_dir} has {len(images)} images")
     brightness = observe.sample_brightness(obs_geometry, images)
-    dark = int((brightness <= 0).sum())
-    if dark:
-        log.warning("%d of %d observations are dark in the rendered image although the geometry says lit", dark, len(brightness))
-    log.info("%d observations of %d points from %d images", len(brightness), len(np.unique(obs_geometry.point_index)), len(images))
+    arrays = {name: getattr(obs_geometry, name) for name in obs_geometry.__dataclass_fields__}
+    if "sensor" in frames:
+        # A real pipeline knows its sensor: the per-observation variance, and saturated pixels to drop.
+        sensor = noise.sensor_from_config(frames["sensor"])
+        keep = ~noise.saturated(brightness, sensor) & (brightness > 0)
+        log.info("dropping %d saturated or zero observations of %d", int((~keep).sum()), len(keep))
+        arrays = {name: (value[keep] if isinstance(value, np.ndarray) and value.shape[:1] == keep.shape else value) for name, value in arrays.items()}
+        brightness = brightness[keep]
+        arrays["variance"] = noise.observation_variance(brightness, sensor)
+    else:
+        dark = int((brightness <= 0).sum())
+        if dark:
+            log.warning("%d of %d observations are dark in the rendered image although the geometry says lit", dark, len(brightness))
+    maps_path = Path(render_dir) / FACET_MAPS_FILE
+    if maps_path.exists():
+        albedo_true, k_true = surface_maps.load_facet_maps(maps_path)
+    else:
+        albedo_true = np.full(obs_geometry.n_points, float(frames["albedo"]))
+        k_true = np.full(obs_geometry.n_points, float(frames["minnaert_k"]))
+    log.info("%d observations of %d points from %d images", len(brightness), len(np.unique(arrays["point_index"])), len(images))
     np.savez_compressed(
         out_npz,
         brightness=brightness,
         light_dir_cam_true=np.asarray(frames["light_dir_cam"]),
-        **{name: getattr(obs_geometry, name) for name in obs_geometry.__dataclass_fields__},
+        albedo_true=albedo_true,
+        minnaert_k_true=k_true,
+        **arrays,
     )
 
 
@@ -121,12 +179,13 @@ def fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, o
     obs, arrays = load_observations(observations_npz)
     result = run_estimator(obs, method, image_set)
     log.info("%s: %s after %d iterations, %.2f s: %s", method, "converged" if result.success else "NOT converged", result.n_iterations, result.fit_seconds, result.message)
-    truth = metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=image_set.albedo, minnaert_k=image_set.minnaert_k)
+    truth = metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=arrays["albedo_true"], minnaert_k=arrays["minnaert_k_true"])
     row = metrics.summary_row(set_id, result, truth)
+    row.update(noise_level=image_set.noise_level, surface_map=image_set.surface_map)
     log.info("summary: %s", json.dumps(row))
     np.savez_compressed(
         out_estimates, light_dir_cam=result.light_dir_cam, albedo=result.albedo, minnaert_k=result.minnaert_k,
-        albedo_true=np.full(obs.n_points, image_set.albedo), minnaert_k_true=np.full(obs.n_points, image_set.minnaert_k),
+        albedo_true=arrays["albedo_true"], minnaert_k_true=arrays["minnaert_k_true"],
     )
     Path(out_summary).write_text(json.dumps(row, indent=1))
 
@@ -158,3 +217,10 @@ def write_runtime_table(benchmark_paths, out_csv) -> None:
     table = metrics.runtime_table(benchmark_paths)
     table.to_csv(out_csv, index=False)
     log.info("runtime per stage (s): %s", table[table.job == "TOTAL"].set_index("stage")["seconds"].round(1).to_dict())
+
+
+def write_sweep_table(summary_paths, sweep: str, out_csv, out_markdown) -> None:
+    table = metrics.collect_sweep(summary_paths)
+    table.to_csv(out_csv, index=False)
+    Path(out_markdown).write_text(metrics.sweep_markdown(table, sweep))
+    log.info("%s sweep: %d rows", sweep, len(table))

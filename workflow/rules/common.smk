@@ -8,7 +8,7 @@ WORKFLOW_DIR = Path(workflow.basedir) / "workflow"
 sys.path.insert(0, str(WORKFLOW_DIR))
 
 from asteroid_photometry.config import validate_config, ConfigError
-from asteroid_photometry.experiment import image_sets
+from asteroid_photometry.experiment import image_sets, named_entry
 
 try:
     config.update(validate_config(config))
@@ -16,18 +16,42 @@ except ConfigError as error:
     raise WorkflowError(f"invalid configuration: {error}") from None
 
 SETS = image_sets(config)
+BASE_SETS = [set_id for set_id, s in SETS.items() if s.is_base]
+SWEEPS = {
+    "noise": [set_id for set_id, s in SETS.items() if s.noise_level],
+    "surface_maps": [set_id for set_id, s in SETS.items() if s.surface_map],
+}
+SWEEPS = {sweep: ids for sweep, ids in SWEEPS.items() if ids}
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
 ESTIMATORS = config["estimators"]
+NAME = "[A-Za-z0-9-]+"
+RENDERED_SET = f"light[^/_]+_albedo[^/_]+_k[^/_]+(_map-{NAME})?"
 
 
 wildcard_constraints:
-    set_id="light[^/_]+_albedo[^/_]+_k[^/_]+",
+    set_id=f"{RENDERED_SET}(_noise-{NAME})?",
     light_tag="light[^/_]+",
     method="|".join(ESTIMATORS),
+    sweep="|".join(SWEEPS) or "none",
 
 
 def image_set(wildcards):
     return SETS[wildcards.set_id]
+
+
+def surface_map_spec(wildcards):
+    """The surface_maps entry a set is rendered with, or None for a uniform surface."""
+    name = SETS[wildcards.set_id].surface_map
+    return named_entry(config, "surface_maps", name) if name else None
+
+
+def noise_level_spec(wildcards):
+    return named_entry(config, "noise_levels", wildcards.level)
+
+
+def noise_seed(wildcards):
+    """Each noisy set draws from its own seed, derived from noise_seed and the set."""
+    return (config["noise_seed"] * 1_000_003 + SETS[f"{wildcards.clean_id}_noise-{wildcards.level}"].seed) % 2**32
 
 
 def shape_model_file(wildcards):

@@ -1,4 +1,5 @@
-# Stage 2: render every image set with the Minnaert BSDF in Mitsuba.
+# Stage 2: render every image set with the Minnaert BSDF in Mitsuba, and
+# record the noisy sets as a sensor would.
 
 
 rule render:
@@ -7,8 +8,11 @@ rule render:
         cameras=rules.imaging_geometry.output.cameras,
     output:
         images=directory("results/render/{set_id}"),
+    wildcard_constraints:
+        set_id=RENDERED_SET,
     params:
         image_set=image_set,
+        surface_map=surface_map_spec,
         samples_per_pixel=config["samples_per_pixel"],
         mitsuba_variant=config["mitsuba_variant"],
     threads: 2
@@ -20,3 +24,24 @@ rule render:
         "../../envs/photometry.yaml"
     script:
         "../scripts/render.py"
+
+
+rule add_noise:
+    input:
+        images="results/render/{clean_id}",
+    output:
+        images=directory("results/render/{clean_id}_noise-{level}"),
+    wildcard_constraints:
+        clean_id=RENDERED_SET,
+        level=NAME,
+    params:
+        sensor=noise_level_spec,
+        seed=noise_seed,
+    log:
+        "logs/add_noise/{clean_id}_noise-{level}.log",
+    benchmark:
+        "benchmarks/add_noise/{clean_id}_noise-{level}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/add_noise.py"

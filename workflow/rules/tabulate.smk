@@ -3,7 +3,7 @@
 
 rule tabulate_table1:
     input:
-        summaries=expand("results/fits/{set_id}/{method}.json", set_id=SETS, method=ESTIMATORS),
+        summaries=expand("results/fits/{set_id}/{method}.json", set_id=BASE_SETS, method=ESTIMATORS),
         paper=Path(workflow.basedir) / "workflow" / "resources" / "paper_table1.csv",
     output:
         csv=report("results/tables/table1.csv", caption="../report/table1.rst", category="Tables"),
@@ -19,7 +19,7 @@ rule tabulate_table1:
 rule plot_table1:
     input:
         table=rules.tabulate_table1.output.csv,
-        estimates=expand("results/fits/{set_id}/{method}.npz", set_id=SETS, method=ESTIMATORS),
+        estimates=expand("results/fits/{set_id}/{method}.npz", set_id=BASE_SETS, method=ESTIMATORS),
     output:
         light=report("results/plots/light_angle.png", caption="../report/plots.rst", category="Plots"),
         albedo=report("results/plots/albedo.png", caption="../report/plots.rst", category="Plots"),
@@ -36,8 +36,9 @@ rule plot_table1:
 rule tabulate_runtime:
     input:
         benchmarks=lambda wildcards: [
-            *expand("benchmarks/render/{set_id}.tsv", set_id=SETS),
+            *expand("benchmarks/render/{set_id}.tsv", set_id=[i for i, s in SETS.items() if not s.noise_level]),
             *expand("benchmarks/observation_geometry/{light_tag}.tsv", light_tag=LIGHT_TAGS),
+            *expand("benchmarks/add_noise/{set_id}.tsv", set_id=SWEEPS.get("noise", [])),
             *expand("benchmarks/observe/{set_id}.tsv", set_id=SETS),
             *expand("benchmarks/fit/{set_id}/{method}.tsv", set_id=SETS, method=ESTIMATORS),
         ],
@@ -49,3 +50,21 @@ rule tabulate_runtime:
         "../../envs/photometry.yaml"
     script:
         "../scripts/tabulate_runtime.py"
+
+
+rule tabulate_sweep:
+    input:
+        summaries=lambda wildcards: expand(
+            "results/fits/{set_id}/{method}.json", set_id=SWEEPS[wildcards.sweep], method=ESTIMATORS
+        ),
+    output:
+        csv=report("results/tables/{sweep}.csv", caption="../report/sweep.rst", category="Tables"),
+        markdown="results/tables/{sweep}.md",
+    params:
+        sweep=lambda wildcards: wildcards.sweep,
+    log:
+        "logs/tabulate_sweep/{sweep}.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/tabulate_sweep.py"

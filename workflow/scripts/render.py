@@ -13,4 +13,5 @@ render_set(
     snakemake.params.mitsuba_variant,  # noqa: F821
     snakemake.output.images,  # noqa: F821
     threads=snakemake.threads,  # noqa: F821
+    surface_map=snakemake.params.surface_map,  # noqa: F821
 )
