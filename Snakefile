@@ -21,3 +21,4 @@ rule all:
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
         expand("results/tables/{sweep}.csv", sweep=SWEEPS),
+        expand("results/plots/error_map_{map_name}.png", map_name=[m["name"] for m in config["surface_maps"]]),

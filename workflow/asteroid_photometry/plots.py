@@ -68,3 +68,36 @@ def plot_per_point_errors(estimates: dict[str, dict], out_path, method: str = "k
     fig.tight_layout()
     fig.savefig(out_path, dpi=120)
     plt.close(fig)
+
+
+def plot_error_maps_on_body(centroids_m: np.ndarray, estimates: dict, title: str, out_path) -> None:
+    """Per-point albedo and k errors coloured on the body, seen from +z (pole) and from -y (side)."""
+    fitted = np.isfinite(estimates["albedo"]) & np.isfinite(estimates["minnaert_k"])
+    points = centroids_m[fitted]
+    errors = {
+        "albedo error": (estimates["albedo"] - estimates["albedo_true"])[fitted],
+        "k error": (estimates["minnaert_k"] - estimates["minnaert_k_true"])[fitted],
+        "true albedo": estimates["albedo_true"][fitted],
+    }
+    fig, axes = plt.subplots(len(errors), 2, figsize=(11, 3.2 * len(errors)))
+    for row, (name, values) in enumerate(errors.items()):
+        if name.endswith("error"):
+            limit = max(float(np.percentile(np.abs(values), 99)), 1e-12)
+            style = {"cmap": "coolwarm", "vmin": -limit, "vmax": limit}
+        else:
+            style = {"cmap": "viridis"}
+        for col, (i, j, view) in enumerate([(0, 1, "from the pole (+z)"), (0, 2, "from the side (-y)")]):
+            ax = axes[row, col]
+            order = np.argsort(points[:, 3 - i - j])  # draw the far side first
+            if col == 1:
+                order = order[::-1]
+            scatter = ax.scatter(points[order, i], points[order, j], c=values[order], s=2, **style)
+            ax.set_aspect("equal")
+            ax.set_title(f"{name}, {view}", fontsize=9)
+            ax.set_xlabel("x (m)", fontsize=8)
+            ax.set_ylabel("yz"[j - 1] + " (m)", fontsize=8)
+            fig.colorbar(scatter, ax=ax, shrink=0.8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)

@@ -224,3 +224,12 @@ def write_sweep_table(summary_paths, sweep: str, out_csv, out_markdown) -> None:
     table.to_csv(out_csv, index=False)
     Path(out_markdown).write_text(metrics.sweep_markdown(table, sweep))
     log.info("%s sweep: %d rows", sweep, len(table))
+
+
+def write_error_map_plot(shape_npz, estimates_npz, title, out_png) -> None:
+    from . import plots
+
+    shape = load_shape_npz(shape_npz)
+    with np.load(estimates_npz) as data:
+        estimates = {name: data[name] for name in data.files}
+    plots.plot_error_maps_on_body(shape["centroids_m"], estimates, title, out_png)

@@ -59,3 +59,8 @@ def shape_model_file(wildcards):
     if config["shape_model_path"]:
         return config["shape_model_path"]
     return f"resources/shape/{config['shape_model']}.tab"
+
+
+def error_map_set(wildcards):
+    """The set whose per-point errors are drawn for a surface map: the last base set's variant."""
+    return next(i for i, s in reversed(list(SETS.items())) if s.surface_map == wildcards.map_name and not s.noise_level)

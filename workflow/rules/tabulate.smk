@@ -68,3 +68,19 @@ rule tabulate_sweep:
         "../../envs/photometry.yaml"
     script:
         "../scripts/tabulate_sweep.py"
+
+
+rule plot_error_map:
+    input:
+        shape=rules.prepare_shape.output.npz,
+        estimates=lambda wildcards: f"results/fits/{error_map_set(wildcards)}/{ESTIMATORS[0]}.npz",
+    output:
+        png=report("results/plots/error_map_{map_name}.png", caption="../report/error_map.rst", category="Plots"),
+    params:
+        title=lambda wildcards: f"{error_map_set(wildcards)}, {ESTIMATORS[0]}: per-point errors on the body",
+    log:
+        "logs/plot_error_map/{map_name}.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/plot_error_map.py"
