@@ -1,0 +1,730 @@
+"""Place a reconstructed point cloud on the reference shape model (body frame).
+
+A reconstruction (structure from motion + multi-view stereo) lives in its
+own frame: without priors, an arbitrary similarity (rotation, translation
+and an unknown scale) away from the body frame; with position priors,
+roughly in the body frame already. Before its normals, albedo and Minnaert
+k can be scored point by point against the truth, it has to be placed on
+the shape model. :func:`register_to_shape` does that in two stages, the
+scheme of ``docs/method.md`` section 3:
+
+1. **Global rough alignment, no initial guess.** Both clouds are first
+   normalised to the same size (centroid at the origin, RMS radius of the
+   voxel-downsampled surface 1), because open3d's feature-based RANSAC
+   estimates a rigid transform only. FPFH features + RANSAC
+   (``registration_ransac_based_on_feature_matching``) give one candidate
+   pose; a principal-axis alignment gives another. Itokawa is elongated and
+   nearly symmetric, so each candidate is also tried turned by 180 degrees
+   about each principal axis of the body (the poses RANSAC confuses), and
+   each of these is polished by a short scaled ICP and scored against the
+   true surface. When no candidate fits, the source is re-sized by a few
+   factors (a hole or a missing cap biases the size estimate) and the
+   search repeats.
+2. **ICP.** The best candidate is refined by point-to-point ICP with
+   scaling (``TransformationEstimationPointToPoint(with_scaling=True)``),
+   then by rigid point-to-plane ICP against dense surface samples with the
+   facets' normals.
+
+The result is scored against the exact mesh (open3d ``RaycastingScene``),
+not against samples. ``success`` is decided by :data:`SUCCESS_RMS_REL`,
+:data:`SUCCESS_FITNESS` and :data:`SUCCESS_AMBIGUITY` (see there for why
+these values).
+
+Frames and units follow the package conventions: the body frame is the
+shape model's, lengths in metres. The returned ``transform`` maps the
+input frame to the body frame, ``x_body = scale * R @ x + t``; normals turn
+by ``R`` only. Reflections are not searched: a reconstruction is assumed to
+be right-handed.
+
+:func:`point_to_surface_distance` and :func:`closest_facet` are also the
+building blocks of the scores in :mod:`asteroid_photometry.quality`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .shape import facet_geometry
+
+logger = logging.getLogger(__name__)
+
+# ---------------------------------------------------------------- thresholds
+#
+# ``success`` needs all three of the conditions below. Measured on Itokawa
+# (tests/test_register.py and a 20-trial benchmark on the Gaskell model):
+# correct poses of clouds with 0.2-0.5 % noise, 20 % outliers and
+# holes give RMS 0.2-0.6 %, fitness 0.98-1.0 and ambiguity 0.03-0.3; a
+# sphere or a random blob gives fitness 0.5-0.65; an ellipsoid of
+# Itokawa's size fits to RMS 0.95 % and fitness 0.96, and only the
+# ambiguity (0.96) rejects it; the Ostro model turned end over end and
+# polished by ICP alone reaches fitness 0.97 at RMS 1.02 %.
+
+#: Inlier band: a registered point within this fraction of the body length
+#: from the true surface counts as an inlier (fitness, inlier RMSE).
+INLIER_DISTANCE_REL = 0.025
+#: RMS distance of the inliers to the true surface below this fraction of
+#: the body length. A correct pose leaves the cloud's own noise; points
+#: spread evenly over the inlier band (a pose that is wrong but "nearly
+#: fits") give INLIER_DISTANCE_REL / sqrt(3) = 1.4 %.
+SUCCESS_RMS_REL = 0.01
+#: Fitness above this: the fraction of the registered points (after outlier
+#: removal) within the inlier band. Fails shapes that are not the body.
+SUCCESS_FITNESS = 0.9
+#: Ambiguity below this: the best other pose tried (turned by more than 10
+#: degrees) must have a truncated mean-square distance at least twice the
+#: chosen pose's (an RMS sqrt(2) larger). Fails clouds whose pose is not
+#: determined by their shape: near-ellipsoids, or patches too small or too
+#: smooth, where Itokawa turned end over end fits about as well. Not
+#: applied when no other pose was tried (``global_search=False``).
+SUCCESS_AMBIGUITY = 0.5
+#: Default voxel size for features and ICP, as a fraction of the body length.
+VOXEL_SIZE_REL = 0.02
+
+# Factors by which the normalised source is re-sized when the global search
+# at the size estimate finds no pose that passes. A hole or a missing cap
+# shrinks a cloud's RMS radius, so the normalised source comes out too large:
+# shrinking is tried first.
+_RESIZE_FACTORS = (1.0, 0.8, 1.2, 0.65)
+# Candidates turned by more than this from the best count as other poses.
+_DISTINCT_POSE_DEG = 10.0
+# Source points on which each global candidate is polished and scored.
+_CANDIDATE_POINTS = 1500
+# The four proper rotations that map the principal axes onto themselves:
+# identity and the 180-degree turns about each axis.
+_AXIS_FLIPS = ((1.0, 1.0, 1.0), (1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))
+
+
+# ---------------------------------------------------------------- transforms
+
+
+def similarity_transform(scale: float, rotation, translation) -> np.ndarray:
+    """The 4x4 matrix of ``x -> scale * rotation @ x + translation``."""
+    transform = np.eye(4)
+    transform[:3, :3] = scale * np.asarray(rotation, dtype=np.float64)
+    transform[:3, 3] = np.asarray(translation, dtype=np.float64)
+    return transform
+
+
+def decompose_similarity(transform) -> tuple[float, np.ndarray, np.ndarray]:
+    """(scale, rotation (3,3), translation (3,)) of a 4x4 similarity (no reflection)."""
+    transform = np.asarray(transform, dtype=np.float64)
+    linear = transform[:3, :3]
+    scale = float(np.cbrt(np.linalg.det(linear)))
+    # The nearest rotation to linear / scale (exact for a true similarity).
+    u, _, vt = np.linalg.svd(linear / scale)
+    rotation = u @ vt
+    return scale, rotation, transform[:3, 3].copy()
+
+
+def transform_points(transform, points) -> np.ndarray:
+    """Points (N,3) mapped by a 4x4 transform."""
+    transform = np.asarray(transform, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
+
+
+def transform_normals(transform, normals) -> np.ndarray:
+    """Unit normals (N,3) turned by the rotation of a 4x4 similarity (scale and translation ignored)."""
+    _, rotation, _ = decompose_similarity(transform)
+    return np.asarray(normals, dtype=np.float64) @ rotation.T
+
+
+def rotation_angle_deg(rotation_a, rotation_b) -> float:
+    """Angle in degrees of the rotation that takes ``rotation_b`` to ``rotation_a``."""
+    relative = np.asarray(rotation_a) @ np.asarray(rotation_b).T
+    return float(np.degrees(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+# ---------------------------------------------------------------- the surface
+
+
+def _as_points(points, name="points") -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {points.shape}")
+    return points
+
+
+def _as_mesh(vertices_m, faces) -> tuple[np.ndarray, np.ndarray]:
+    vertices_m = _as_points(vertices_m, "vertices_m")
+    faces = np.asarray(faces, dtype=np.int64)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise ValueError(f"faces must have shape (F, 3) with F > 0, got {faces.shape}")
+    if faces.min() < 0 or faces.max() >= len(vertices_m):
+        raise ValueError(f"face indices must lie in [0, {len(vertices_m)}) (0-based)")
+    return vertices_m, faces
+
+
+class SurfaceQuery:
+    """Distances and closest facets of points to one triangle mesh (open3d ``RaycastingScene``).
+
+    Build once, query many times. The scene holds float32 coordinates, so
+    the mesh is shifted to its vertex centroid first (queries are shifted
+    the same way): precision then depends on the body's size, not on where
+    it sits. Distances are unsigned, in the mesh's length unit.
+    """
+
+    def __init__(self, vertices, faces):
+        import open3d as o3d
+
+        vertices, faces = _as_mesh(vertices, faces)
+        self.offset = vertices[np.unique(faces)].mean(axis=0)
+        self.n_faces = len(faces)
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(vertices - self.offset, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+        )
+
+    def _query_tensor(self, points):
+        import open3d as o3d
+
+        points = _as_points(points)
+        return o3d.core.Tensor(np.ascontiguousarray(points - self.offset, dtype=np.float32))
+
+    def distance(self, points) -> np.ndarray:
+        """Unsigned distance (N,) from each point to the surface."""
+        if len(points) == 0:
+            return np.zeros(0)
+        return self._scene.compute_distance(self._query_tensor(points)).numpy().astype(np.float64)
+
+    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """(closest surface points (N,3), their facet ids (N,) int64)."""
+        if len(points) == 0:
+            return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+        answer = self._scene.compute_closest_points(self._query_tensor(points))
+        closest_points = answer["points"].numpy().astype(np.float64) + self.offset
+        return closest_points, answer["primitive_ids"].numpy().astype(np.int64)
+
+
+def point_to_surface_distance(points, vertices_m, faces) -> np.ndarray:
+    """Unsigned distance in metres (N,) from each body-frame point to the mesh surface."""
+    return SurfaceQuery(vertices_m, faces).distance(points)
+
+
+def closest_facet(points, vertices_m, faces) -> np.ndarray:
+    """Index (N,) int64 into ``faces`` of the facet nearest to each body-frame point.
+
+    Use it to score a reconstructed point against its true facet's albedo,
+    Minnaert k and normal (``facet_geometry(vertices_m, faces)[1][ids]``).
+    """
+    return SurfaceQuery(vertices_m, faces).closest(points)[1]
+
+
+def sample_surface(vertices_m, faces, n_points: int, seed=0) -> tuple[np.ndarray, np.ndarray]:
+    """``n_points`` points uniformly distributed over the mesh surface, and the facet of each.
+
+    Facets are drawn with probability proportional to their area, points
+    uniformly inside them. Returns (points (n,3) in the mesh's frame and
+    unit, facet ids (n,) int64). ``seed`` is an int or a numpy Generator.
+    """
+    vertices_m, faces = _as_mesh(vertices_m, faces)
+    rng = np.random.default_rng(seed)
+    corners = vertices_m[faces]
+    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    facet_ids = rng.choice(len(faces), size=int(n_points), p=areas / areas.sum())
+    u, v = rng.random((2, int(n_points)))
+    outside = u + v > 1.0
+    u[outside], v[outside] = 1.0 - u[outside], 1.0 - v[outside]
+    chosen = corners[facet_ids]
+    points = chosen[:, 0] + u[:, None] * (chosen[:, 1] - chosen[:, 0]) + v[:, None] * (chosen[:, 2] - chosen[:, 0])
+    return points, facet_ids.astype(np.int64)
+
+
+def principal_axes(vertices_m, faces) -> tuple[np.ndarray, np.ndarray]:
+    """(area-weighted surface centroid (3,), principal axes (3,3) as columns, longest first), body frame."""
+    vertices_m, faces = _as_mesh(vertices_m, faces)
+    corners = vertices_m[faces]
+    _, _, areas = facet_geometry(vertices_m, faces)
+    weights = areas / areas.sum()
+    centroid = weights @ corners.mean(axis=1)
+    # Second moment of the surface about the centroid, exact for triangles:
+    # the mean of x x^T over a triangle (a, b, c) is (a a^T + b b^T + c c^T + s s^T) / 12, s = a + b + c.
+    offsets = corners - centroid
+    sums = offsets.sum(axis=1)
+    moment = np.einsum("f,fci,fcj->ij", weights, offsets, offsets) + np.einsum("f,fi,fj->ij", weights, sums, sums)
+    moment /= 12.0
+    eigenvalues, axes = np.linalg.eigh(moment)
+    axes = axes[:, np.argsort(eigenvalues)[::-1]]
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return centroid, axes
+
+
+def body_length_m(vertices_m, faces) -> float:
+    """The body's longest extent: the vertices' range along the surface's first principal axis.
+
+    Frame-independent (unlike a bounding box); for Itokawa's models it is
+    the long-axis length, about 560 m (Gaskell) or 548 m (Ostro).
+    """
+    vertices_m, faces = _as_mesh(vertices_m, faces)
+    centroid, axes = principal_axes(vertices_m, faces)
+    used = vertices_m[np.unique(faces)]
+    along = (used - centroid) @ axes
+    return float((along.max(axis=0) - along.min(axis=0)).max())
+
+
+# ---------------------------------------------------------------- the result
+
+
+@dataclass(frozen=True)
+class RegistrationResult:
+    """Where a reconstructed cloud sits on the shape model, and how well it fits.
+
+    - ``transform`` (4,4): the similarity from the input frame to the body
+      frame, ``x_body = scale * rotation @ x + translation_m``.
+    - ``success``: ``rms_distance_rel < success_rms_rel``, ``fitness >
+      success_fitness`` and ``ambiguity < success_ambiguity`` (the
+      thresholds used are stored; defaults ``SUCCESS_*``).
+    - ``fitness``: fraction of the registered points (the input after
+      outlier removal and voxel thinning) within ``inlier_distance_m`` of
+      the true surface; ``inlier_rmse_m`` their RMS distance to it;
+      ``rms_distance_rel`` = ``inlier_rmse_m / body_length_m``.
+    - ``inlier_fraction_all``: the same fraction over all finite input
+      points (outliers included).
+    - ``ambiguity``: truncated mean-square distance of the chosen pose over
+      that of the best other pose of the global search (0: unique, 1: another
+      pose fits as well; NaN when no other pose was tried).
+    - ``seconds_global`` / ``seconds_icp``: wall time of the rough alignment
+      (sampling the reference, thinning and cleaning the input, features,
+      RANSAC, the candidate search) and of the final ICP (scaled
+      point-to-point, then point-to-plane).
+    """
+
+    transform: np.ndarray
+    scale: float
+    rotation: np.ndarray
+    translation_m: np.ndarray
+    success: bool
+    fitness: float
+    inlier_rmse_m: float
+    rms_distance_rel: float
+    inlier_fraction_all: float
+    body_length_m: float
+    inlier_distance_m: float
+    voxel_size_m: float
+    seconds_global: float
+    seconds_icp: float
+    n_points_input: int
+    n_points_registered: int
+    n_candidates: int
+    ambiguity: float
+    success_rms_rel: float
+    success_fitness: float
+    success_ambiguity: float
+
+    @property
+    def seconds(self) -> float:
+        return self.seconds_global + self.seconds_icp
+
+    def apply(self, points) -> np.ndarray:
+        """Input-frame points (N,3) in the body frame (metres)."""
+        return transform_points(self.transform, points)
+
+    def apply_normals(self, normals) -> np.ndarray:
+        """Input-frame unit normals (N,3) turned into the body frame."""
+        return np.asarray(normals, dtype=np.float64) @ self.rotation.T
+
+    def summary(self) -> dict:
+        """The scalar fields as a JSON-ready dict (the transform as nested lists)."""
+        return {
+            "success": bool(self.success),
+            "scale": self.scale,
+            "transform": self.transform.tolist(),
+            "fitness": self.fitness,
+            "inlier_rmse_m": self.inlier_rmse_m,
+            "rms_distance_rel": self.rms_distance_rel,
+            "inlier_fraction_all": self.inlier_fraction_all,
+            "body_length_m": self.body_length_m,
+            "inlier_distance_m": self.inlier_distance_m,
+            "voxel_size_m": self.voxel_size_m,
+            "seconds_global": self.seconds_global,
+            "seconds_icp": self.seconds_icp,
+            "n_points_input": self.n_points_input,
+            "n_points_registered": self.n_points_registered,
+            "n_candidates": self.n_candidates,
+            "ambiguity": self.ambiguity,
+            "success_rms_rel": self.success_rms_rel,
+            "success_fitness": self.success_fitness,
+            "success_ambiguity": self.success_ambiguity,
+        }
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def _point_cloud(points, normals=None):
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
+    if normals is not None:
+        cloud.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=np.float64))
+    return cloud
+
+
+def _centre_and_rms_radius(points) -> tuple[np.ndarray, float]:
+    centre = points.mean(axis=0)
+    return centre, float(np.sqrt(np.mean(np.sum((points - centre) ** 2, axis=1))))
+
+
+def _axes_of(points) -> np.ndarray:
+    """Principal axes (columns, largest variance first, right-handed) of a centred cloud."""
+    eigenvalues, axes = np.linalg.eigh(np.cov(points.T))
+    axes = axes[:, np.argsort(eigenvalues)[::-1]]
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return axes
+
+
+def _features(cloud, voxel):
+    """Normals re-estimated at the voxel scale (keeping the given orientation) and FPFH features."""
+    import open3d as o3d
+
+    reference_normals = np.asarray(cloud.normals).copy()
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
+    normals = np.asarray(cloud.normals)
+    flip = np.sum(normals * reference_normals, axis=1) < 0
+    normals[flip] = -normals[flip]
+    cloud.normals = o3d.utility.Vector3dVector(normals)
+    return o3d.pipelines.registration.compute_fpfh_feature(
+        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100)
+    )
+
+
+def _icp(source, target, init, distances, *, with_scaling, point_to_plane=False, max_iteration=30):
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    if point_to_plane:
+        estimation = reg.TransformationEstimationPointToPlane()
+    else:
+        estimation = reg.TransformationEstimationPointToPoint(with_scaling=with_scaling)
+    transform = np.asarray(init, dtype=np.float64)
+    for distance in distances:
+        result = reg.registration_icp(
+            source,
+            target,
+            distance,
+            transform,
+            estimation,
+            reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=max_iteration),
+        )
+        transform = np.asarray(result.transformation)
+    return transform
+
+
+def _ambiguity(candidates, best) -> float:
+    """How well the best other pose fits, compared with the best: truncated mean-square distances, best over other.
+
+    Other: turned by more than :data:`_DISTINCT_POSE_DEG` from ``best``. The
+    truncated mean square ``mean(min(d, inlier)^2)`` is ``inlier^2 (1 - score)``.
+    0 means every other pose is far worse; 1 means another pose (typically
+    the body turned end over end, or any pose of an ellipsoid) fits as well,
+    so the choice between them is not trustworthy. NaN without other poses.
+    """
+    _, best_rotation, _ = decompose_similarity(best[3])
+    others = [
+        candidate[0]
+        for candidate in candidates
+        if rotation_angle_deg(decompose_similarity(candidate[3])[1], best_rotation) > _DISTINCT_POSE_DEG
+    ]
+    if not others:
+        return float("nan")
+    return float((1.0 - best[0]) / max(1.0 - max(others), 1e-12))
+
+
+def _dense_points(points, n_neighbours, distance_ratio) -> np.ndarray:
+    """Mask of points whose mean distance to their nearest neighbours is at most ``distance_ratio`` x the median.
+
+    On a voxel-thinned cloud the surface is sampled about evenly, so stray
+    points in the empty space around it stand out by their distance to their
+    neighbours. The median is robust to them (open3d's statistical outlier
+    removal thresholds on mean + k std, which a fifth of outliers inflates
+    until it removes almost nothing).
+    """
+    from scipy.spatial import cKDTree
+
+    if len(points) <= n_neighbours:
+        return np.ones(len(points), dtype=bool)
+    distances, _ = cKDTree(points).query(points, n_neighbours + 1)
+    mean_distance = distances[:, 1:].mean(axis=1)
+    return mean_distance <= distance_ratio * np.median(mean_distance)
+
+
+def _fit_score(distances, inlier_distance) -> float:
+    """Mean truncated-quadratic agreement: 1 on the surface, 0 at or beyond the inlier distance."""
+    return float(np.mean(np.clip(1.0 - (distances / inlier_distance) ** 2, 0.0, None)))
+
+
+def _fit_stats(distances, inlier_distance) -> tuple[float, float]:
+    """(fitness, inlier RMSE) of point-to-surface distances."""
+    inliers = distances <= inlier_distance
+    fitness = float(inliers.mean()) if len(distances) else 0.0
+    rmse = float(np.sqrt(np.mean(distances[inliers] ** 2))) if inliers.any() else float("inf")
+    return fitness, rmse
+
+
+# ---------------------------------------------------------------- registration
+
+
+def register_to_shape(
+    points,
+    normals,
+    shape_vertices_m,
+    shape_faces,
+    *,
+    estimate_scale: bool = True,
+    voxel_size=None,
+    seed: int = 0,
+    init_transform=None,
+    global_search: bool = True,
+    n_ransac: int = 1,
+    ransac_max_iteration: int = 30_000,
+    inlier_distance_rel: float = INLIER_DISTANCE_REL,
+    success_rms_rel: float = SUCCESS_RMS_REL,
+    success_fitness: float = SUCCESS_FITNESS,
+    success_ambiguity: float = SUCCESS_AMBIGUITY,
+    outlier_neighbours: int = 12,
+    outlier_distance_ratio: float = 2.0,
+) -> RegistrationResult:
+    """Find the similarity that puts a reconstructed cloud onto the shape model, and score it.
+
+    Parameters
+    ----------
+    points : (N, 3) reconstructed points in their own frame (any unit; NaN rows are ignored).
+    normals : (N, 3) their outward normals in the same frame, or None to
+        estimate them (oriented away from the cloud's centroid).
+    shape_vertices_m, shape_faces : the reference mesh in the body frame
+        (metres, 0-based faces; unused vertices allowed).
+    estimate_scale : True for a cloud of unknown scale (SfM without priors);
+        False when the cloud is already in metres: the scale is then held at
+        1 (or at the scale of ``init_transform`` when only that is refined).
+    voxel_size : metres in the body frame for features and ICP; default
+        ``VOXEL_SIZE_REL`` of the body length (11 m for Itokawa). The source
+        is brought to the body's size before it is thinned, so one voxel
+        size serves both clouds.
+    seed : seeds the surface sampling and open3d's RANSAC.
+    init_transform : optional 4x4 input-to-body similarity guess (e.g. from
+        position priors); it joins the candidates of the global search, or
+        is the only start when ``global_search`` is False.
+    n_ransac : RANSAC runs (different seeds) per size hypothesis.
+    inlier_distance_rel, success_rms_rel, success_fitness, success_ambiguity :
+        the inlier band and the success thresholds (the first two as
+        fractions of the body length); defaults and reasons at the top of
+        this module.
+    outlier_neighbours, outlier_distance_ratio : outlier removal applied to
+        the thinned source before registration: a point is dropped when its
+        mean distance to its ``outlier_neighbours`` nearest neighbours exceeds
+        ``outlier_distance_ratio`` times the median of that over the cloud.
+
+    Returns a :class:`RegistrationResult`. Raises ValueError for malformed
+    input or fewer than 30 usable points.
+    """
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    start = time.perf_counter()
+    points = _as_points(points)
+    vertices_m, faces = _as_mesh(shape_vertices_m, shape_faces)
+    if normals is not None:
+        normals = _as_points(normals, "normals")
+        if len(normals) != len(points):
+            raise ValueError(f"normals has {len(normals)} rows but points has {len(points)}")
+    finite = np.all(np.isfinite(points), axis=1)
+    if normals is not None:
+        finite &= np.all(np.isfinite(normals), axis=1)
+    points_in = points[finite]
+    normals_in = None if normals is None else normals[finite]
+    if len(points_in) < 30:
+        raise ValueError(f"need at least 30 finite points to register, got {len(points_in)}")
+    if not global_search and init_transform is None:
+        raise ValueError("global_search=False needs an init_transform")
+
+    rng = np.random.default_rng(seed)
+    length_m = body_length_m(vertices_m, faces)
+    voxel_m = float(voxel_size) if voxel_size is not None else VOXEL_SIZE_REL * length_m
+    inlier_m = inlier_distance_rel * length_m
+    surface = SurfaceQuery(vertices_m, faces)
+
+    # --- the target: dense uniform samples of the surface with facet normals.
+    _, facet_normals, areas = facet_geometry(vertices_m, faces)
+    n_dense = int(np.clip(areas.sum() / (0.25 * voxel_m) ** 2, 20_000, 200_000))
+    target_points, target_facets = sample_surface(vertices_m, faces, n_dense, rng)
+    target_normals = facet_normals[target_facets]
+    target_fine = _point_cloud(target_points, target_normals).voxel_down_sample(0.5 * voxel_m)
+    target_centre, target_radius = _centre_and_rms_radius(np.asarray(target_fine.points))
+
+    # --- the source: roughly brought to the body's size (median radius), then
+    # thinned, cleaned of outliers, and centred and sized like the target.
+    rough_centre = np.median(points_in, axis=0)
+    rough_radius = float(np.median(np.linalg.norm(points_in - rough_centre, axis=1)))
+    target_median_radius = float(np.median(np.linalg.norm(target_points - target_centre, axis=1)))
+    if not rough_radius > 0:
+        raise ValueError("the points have no extent (all at one place)")
+    if estimate_scale:
+        rough_scale = target_median_radius / rough_radius
+    else:
+        rough_scale = 1.0
+    source_rough = _point_cloud((points_in - rough_centre) * rough_scale, normals_in)
+    source_fine = source_rough.voxel_down_sample(0.5 * voxel_m)
+    source_fine = source_fine.select_by_index(
+        np.flatnonzero(_dense_points(np.asarray(source_fine.points), outlier_neighbours, outlier_distance_ratio))
+    )
+    if len(source_fine.points) < 30:
+        raise ValueError(f"fewer than 30 points left after thinning and outlier removal ({len(source_fine.points)})")
+    source_centre, source_radius = _centre_and_rms_radius(np.asarray(source_fine.points))
+    if normals_in is None:
+        # Orient estimated normals away from the centroid (right for most of a
+        # star-shaped body such as Itokawa).
+        source_fine.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel_m, max_nn=30))
+        source_fine.orient_normals_towards_camera_location(source_centre)
+        source_fine.normals = o3d.utility.Vector3dVector(-np.asarray(source_fine.normals))
+
+    # Normalised frames: target y' = (y - c_t) / r_t; source x' = f (x_rough - c_s) / r_s.
+    size_ratio = target_radius / source_radius if estimate_scale else 1.0
+    to_target_norm = similarity_transform(1.0 / target_radius, np.eye(3), -target_centre / target_radius)
+    from_target_norm = np.linalg.inv(to_target_norm)
+    rough_to_input = similarity_transform(1.0 / rough_scale, np.eye(3), rough_centre)
+    input_to_rough = np.linalg.inv(rough_to_input)
+
+    def source_norm_from_rough(factor):
+        scale = factor * size_ratio / target_radius
+        return similarity_transform(scale, np.eye(3), -scale * source_centre)
+
+    voxel = voxel_m / target_radius
+    inlier = inlier_m / target_radius
+    target_norm = _point_cloud(
+        (np.asarray(target_fine.points) - target_centre) / target_radius, np.asarray(target_fine.normals)
+    )
+    target_coarse = target_norm.voxel_down_sample(voxel)
+    target_features = _features(target_coarse, voxel)
+    target_axes = _axes_of(np.asarray(target_coarse.points))
+    flips = [target_axes @ np.diag(signs) @ target_axes.T for signs in _AXIS_FLIPS]
+    norm_vertices = (vertices_m - target_centre) / target_radius
+    norm_surface = SurfaceQuery(norm_vertices, faces)
+
+    # --- stage 1: global search over size hypotheses, RANSAC and PCA candidates.
+    factors = _RESIZE_FACTORS if (estimate_scale and global_search) else (1.0,)
+    candidates = []  # (score, fitness, rmse_m, transform input->body) per polished start
+    for factor in factors:
+        rough_to_norm = source_norm_from_rough(factor)
+        source_norm = _point_cloud(
+            transform_points(rough_to_norm, np.asarray(source_fine.points)), np.asarray(source_fine.normals)
+        )
+        source_coarse = source_norm.voxel_down_sample(voxel)
+        source_coarse_points = np.asarray(source_coarse.points)
+        # Candidates are polished and scored on a subset: enough to rank them.
+        subset = np.sort(rng.permutation(len(source_coarse_points))[:_CANDIDATE_POINTS])
+        source_subset = _point_cloud(source_coarse_points[subset])
+        starts = []
+        if global_search:
+            source_features = _features(source_coarse, voxel)
+            for attempt in range(n_ransac):
+                o3d.utility.random.seed(int(seed) * 1000 + attempt)
+                ransac = reg.registration_ransac_based_on_feature_matching(
+                    source_coarse,
+                    target_coarse,
+                    source_features,
+                    target_features,
+                    False,
+                    1.5 * voxel,
+                    reg.TransformationEstimationPointToPoint(False),
+                    3,
+                    [
+                        reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                        reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel),
+                    ],
+                    reg.RANSACConvergenceCriteria(ransac_max_iteration, 0.999),
+                )
+                starts += [similarity_transform(1.0, flip, np.zeros(3)) @ ransac.transformation for flip in flips]
+            source_axes = _axes_of(source_coarse_points)
+            source_mean = source_coarse_points.mean(axis=0)
+            pca = similarity_transform(1.0, target_axes @ source_axes.T, -target_axes @ source_axes.T @ source_mean)
+            starts += [similarity_transform(1.0, flip, np.zeros(3)) @ pca for flip in flips]
+        if init_transform is not None:
+            # input -> body  ==>  normalised source -> normalised target.
+            norm_to_input = rough_to_input @ np.linalg.inv(rough_to_norm)
+            starts.append(to_target_norm @ np.asarray(init_transform, dtype=np.float64) @ norm_to_input)
+        for start_transform in starts:
+            transform = _icp(
+                source_subset,
+                target_coarse,
+                start_transform,
+                [3.0 * voxel, 1.5 * voxel],
+                with_scaling=estimate_scale,
+                max_iteration=20,
+            )
+            distances = norm_surface.distance(transform_points(transform, source_coarse_points[subset]))
+            fitness, rmse = _fit_stats(distances, inlier)
+            input_to_body = from_target_norm @ transform @ rough_to_norm @ input_to_rough
+            candidates.append((_fit_score(distances, inlier), fitness, rmse * target_radius, input_to_body))
+        best = max(candidates, key=lambda candidate: candidate[0])
+        logger.debug("size factor %.2f: best score %.3f fitness %.3f", factor, best[0], best[1])
+        if best[1] > success_fitness and best[2] < success_rms_rel * length_m:
+            break
+    ambiguity = _ambiguity(candidates, best)
+    seconds_global = time.perf_counter() - start
+
+    # --- stage 2: ICP in the body frame: scaled point-to-point, then point-to-plane.
+    start = time.perf_counter()
+    source_body = _point_cloud(transform_points(rough_to_input, np.asarray(source_fine.points)))
+    transform = _icp(
+        source_body, target_fine, best[3], [2.0 * voxel_m, 1.0 * voxel_m], with_scaling=estimate_scale
+    )
+    transform = _icp(
+        source_body,
+        _point_cloud(target_points, target_normals),
+        transform,
+        [1.0 * voxel_m, 0.5 * voxel_m],
+        with_scaling=False,
+        point_to_plane=True,
+    )
+    seconds_icp = time.perf_counter() - start
+
+    registered = transform_points(transform, np.asarray(source_body.points))
+    fitness, inlier_rmse_m = _fit_stats(surface.distance(registered), inlier_m)
+    inlier_fraction_all = float(np.mean(surface.distance(transform_points(transform, points_in)) <= inlier_m))
+    rms_distance_rel = inlier_rmse_m / length_m
+    scale, rotation, translation = decompose_similarity(transform)
+    unambiguous = not ambiguity >= success_ambiguity  # NaN (no other pose tried) passes
+    success = bool(rms_distance_rel < success_rms_rel and fitness > success_fitness and unambiguous)
+    logger.info(
+        "registration %s: scale %.6g, fitness %.3f, inlier RMS %.3g m (%.3g %% of %.1f m), ambiguity %.3f, "
+        "%d candidates, %.2f s global + %.2f s ICP",
+        "succeeded" if success else "FAILED",
+        scale,
+        fitness,
+        inlier_rmse_m,
+        100 * rms_distance_rel,
+        length_m,
+        ambiguity,
+        len(candidates),
+        seconds_global,
+        seconds_icp,
+    )
+    return RegistrationResult(
+        transform=transform,
+        scale=scale,
+        rotation=rotation,
+        translation_m=translation,
+        success=success,
+        fitness=fitness,
+        inlier_rmse_m=inlier_rmse_m,
+        rms_distance_rel=rms_distance_rel,
+        inlier_fraction_all=inlier_fraction_all,
+        body_length_m=length_m,
+        inlier_distance_m=inlier_m,
+        voxel_size_m=voxel_m,
+        seconds_global=seconds_global,
+        seconds_icp=seconds_icp,
+        n_points_input=len(points),
+        n_points_registered=len(registered),
+        n_candidates=len(candidates),
+        ambiguity=ambiguity,
+        success_rms_rel=success_rms_rel,
+        success_fitness=success_fitness,
+        success_ambiguity=success_ambiguity,
+    )
