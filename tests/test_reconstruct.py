@@ -1,0 +1,302 @@
+"""Sparse reconstruction with pycolmap: tone mapping, pose-prior bundle adjustment, the over-fitting flag.
+
+Synthetic inputs with known answers; the slow measurement on a rendered set
+is not part of the suite (see the module docstring of ``reconstruct``).
+"""
+
+import numpy as np
+import pytest
+
+pycolmap = pytest.importorskip("pycolmap")
+
+from asteroid_photometry import cameras  # noqa: E402
+from asteroid_photometry import reconstruct as rc  # noqa: E402
+
+DISTANCE_M = 5.0  # camera distance from the body centre; the body is a unit ball of points
+IMAGE_SIZE = 400
+N_IMAGES = 12
+
+
+def synthetic_scene(n_images=N_IMAGES, n_points=150, seed=0):
+    """True poses (n, 4, 4), intrinsics and body-frame points of a turning body seen from 20 deg latitude."""
+    rng = np.random.default_rng(seed)
+    intrinsics = cameras.intrinsics_for_body(IMAGE_SIZE, DISTANCE_M, 1.0)
+    poses = cameras.body_to_camera_poses(n_images, DISTANCE_M, view_latitude_deg=20.0)
+    directions = rng.normal(size=(n_points, 3))
+    points = directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(0.3, 1.0, size=(n_points, 1)) ** (1 / 3)
+    return poses, intrinsics, points
+
+
+def synthetic_model(poses, intrinsics, points, pixel_noise=0.0, seed=0):
+    """A pycolmap model of the scene with every point seen in every image (images named as the pipeline names them)."""
+    rng = np.random.default_rng(seed)
+    camera = pycolmap.Camera(
+        model="PINHOLE", width=intrinsics.width, height=intrinsics.height,
+        params=[intrinsics.focal_px, intrinsics.focal_px, intrinsics.cx, intrinsics.cy], camera_id=1,
+    )
+    model = pycolmap.Reconstruction()
+    model.add_camera_with_trivial_rig(camera)
+    for index, pose in enumerate(poses):
+        uv = cameras.project(points @ pose[:3, :3].T + pose[:3, 3], intrinsics) + rng.normal(0.0, pixel_noise, size=(len(points), 2))
+        image = pycolmap.Image(
+            name=rc.image_name(index), points2D=pycolmap.Point2DList([pycolmap.Point2D(xy) for xy in uv]),
+            camera_id=1, image_id=index + 1,
+        )
+        model.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pose[:3, :]))
+    for point_index, xyz in enumerate(points):
+        track = pycolmap.Track()
+        for index in range(len(poses)):
+            track.add_element(index + 1, point_index)
+        model.add_point3D(xyz, track)
+    return model
+
+
+def model_poses(model) -> np.ndarray:
+    """(n, 4, 4) poses of the model's images in image-id order."""
+    return np.array([rc.pose_matrix(model.image(image_id).cam_from_world()) for image_id in sorted(model.reg_image_ids())])
+
+
+def random_similarity(rng):
+    rotation = pycolmap.Rotation3d(rng.normal(size=3))
+    return pycolmap.Sim3d(rotation=rotation, translation=rng.normal(size=3) * 3.0, scale=2.5)
+
+
+def perturb_poses(model, rng, angle_rad=0.01, shift=0.1):
+    for image_id in model.reg_image_ids():
+        image = model.image(image_id)
+        pose = rc.pose_matrix(image.cam_from_world())
+        delta = pycolmap.Rotation3d(rng.normal(size=3) * angle_rad).matrix()
+        pose[:3, :3] = delta @ pose[:3, :3]
+        pose[:3, 3] += rng.normal(size=3) * shift
+        image.frame.set_cam_from_world(image.camera_id, pycolmap.Rigid3d(pose[:3, :]))
+
+
+def true_centres_by_image_id(poses, noise_m=0.0, seed=0):
+    centres = rc.simulate_navigation_positions(poses, noise_m, seed) if noise_m else cameras.camera_centres_body(poses)
+    return centres, {index + 1: centre for index, centre in enumerate(centres)}
+
+
+# ----------------------------------------------------------------------------------------------
+# Tone mapping
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("curve", sorted(rc.TONE_CURVES))
+def test_tone_map_is_monotone_8bit_and_saturates_at_the_reference(curve):
+    linear = np.concatenate([[0.0, -0.1, np.nan], np.sort(np.random.default_rng(1).uniform(0.0, 1.4, 5000)), [2.0]])
+    order = np.argsort(np.nan_to_num(linear, nan=0.0), kind="stable")
+    grey = rc.tone_map(linear, reference=0.7, curve=curve)
+    assert grey.dtype == np.uint8 and grey.shape == linear.shape
+    assert np.all(np.diff(grey[order].astype(int)) >= 0)
+    assert grey[0] == grey[1] == grey[2] == 0  # zero, negative, NaN: black
+    assert np.all(grey[linear >= 0.7] == 255)
+    assert len(np.unique(grey)) > 100  # the 8 bits are used
+
+
+def test_reference_brightness_is_a_high_percentile_of_the_lit_pixels():
+    images = [np.zeros((100, 100)), np.linspace(0.0, 1.0, 10_000).reshape(100, 100)]
+    images[1][0, 0] = 50.0  # one hot pixel must not set the scale
+    assert 0.99 < rc.reference_brightness(images) < 1.0
+    assert rc.reference_brightness([np.zeros((4, 4))]) == 1.0
+    with pytest.raises(ValueError, match="unknown tone curve"):
+        rc.tone_map(images[1], 1.0, "gamma7")
+
+
+# ----------------------------------------------------------------------------------------------
+# Priors, alignment, report
+# ----------------------------------------------------------------------------------------------
+
+
+def test_simulated_navigation_positions_are_truth_plus_seeded_noise():
+    poses = cameras.body_to_camera_poses(2000, 5000.0)
+    truth = cameras.camera_centres_body(poses)
+    first = rc.simulate_navigation_positions(poses, 2.0, seed=3)
+    np.testing.assert_array_equal(first, rc.simulate_navigation_positions(poses, 2.0, seed=3))
+    assert not np.array_equal(first, rc.simulate_navigation_positions(poses, 2.0, seed=4))
+    errors = first - truth
+    assert abs(errors.mean()) < 0.1 and abs(errors.std() - 2.0) < 0.1
+
+
+def test_similarity_alignment_recovers_a_known_similarity():
+    rng = np.random.default_rng(2)
+    source = rng.normal(size=(20, 3))
+    rotation = pycolmap.Rotation3d(np.array([0.3, -1.0, 0.5])).matrix()
+    target = 3.0 * source @ rotation.T + np.array([1.0, 2.0, -3.0])
+    scale, estimated_rotation, translation = rc.similarity_alignment(source, target)
+    assert scale == pytest.approx(3.0)
+    np.testing.assert_allclose(estimated_rotation, rotation, atol=1e-12)
+    np.testing.assert_allclose(translation, [1.0, 2.0, -3.0], atol=1e-12)
+
+
+def test_pose_report_flags_residuals_clearly_below_the_stated_accuracy():
+    poses = cameras.body_to_camera_poses(36, 5000.0)
+    noisy = rc.simulate_navigation_positions(poses, 1.0, seed=0)
+    on_truth = rc.pose_report(poses, poses, noisy, 1.0)  # cameras where the tie points put them: residual = noise
+    assert 0.8 < on_truth["cam_pos_rms_ratio"] < 1.2 and not on_truth["prior_overfit"]
+    assert on_truth["cam_pos_true_rms_m"] == 0.0 and on_truth["cam_rot_true_rms_deg"] < 1e-6
+    on_priors = poses.copy()
+    on_priors[:, :3, 3] = -np.einsum("nij,nj->ni", poses[:, :3, :3], noisy)  # cameras moved onto their priors
+    pulled = rc.pose_report(on_priors, poses, noisy, 1.0)
+    assert pulled["cam_pos_rms_m"] < 1e-9 and pulled["prior_overfit"]
+    assert pulled["cam_pos_true_rms_m"] == pytest.approx(pulled["prior_pos_true_rms_m"])
+
+
+def test_pose_report_without_priors_aligns_a_similarity_frame():
+    poses = cameras.body_to_camera_poses(8, 5000.0, view_latitude_deg=10.0)
+    rng = np.random.default_rng(5)
+    similarity = random_similarity(rng)  # model-from-body
+    moved = np.array([rc.pose_matrix(similarity.transform_camera_world(pycolmap.Rigid3d(pose[:3, :]))) for pose in poses])
+    report = rc.pose_report(moved, poses, None, None)
+    assert report["cam_pos_rms_m"] is None and report["prior_overfit"] is None
+    assert report["alignment_scale"] == pytest.approx(1 / 2.5)
+    assert report["cam_pos_true_rms_m"] < 1e-8 and report["cam_rot_true_rms_deg"] < 1e-5
+
+
+# ----------------------------------------------------------------------------------------------
+# Bundle adjustment with position priors
+# ----------------------------------------------------------------------------------------------
+
+
+def test_synthetic_model_follows_our_pose_and_pixel_conventions():
+    poses, intrinsics, points = synthetic_scene()
+    model = synthetic_model(poses, intrinsics, points)
+    assert np.abs(rc.reprojection_residuals(model)).max() < 1e-9  # pycolmap projects as cameras.project does
+    result = rc.SparseReconstruction(model, rc.model_report(model, poses))
+    estimated = result.body_to_camera()
+    assert sorted(estimated) == list(range(N_IMAGES))
+    np.testing.assert_allclose(np.array([estimated[i] for i in range(N_IMAGES)]), poses, atol=1e-12)
+    np.testing.assert_allclose(np.array(list(result.camera_centres().values())), cameras.camera_centres_body(poses), atol=1e-12)
+
+
+def test_position_priors_pull_a_perturbed_model_back_into_the_body_frame():
+    poses, intrinsics, points = synthetic_scene()
+    model = synthetic_model(poses, intrinsics, points)
+    rng = np.random.default_rng(7)
+    model.transform(random_similarity(rng))  # an arbitrary SfM frame ...
+    perturb_poses(model, rng)  # ... and wrong poses
+    assert rc.rms(cameras.camera_centres_body(model_poses(model)) - cameras.camera_centres_body(poses)) > 1.0
+    _, priors = true_centres_by_image_id(poses)
+    summary = rc.bundle_adjust(model, priors, camera_position_sigma_m=0.01, tie_point_sigma_px=1.0)
+    assert summary.is_solution_usable()
+    adjusted = model_poses(model)
+    assert rc.rms(cameras.camera_centres_body(adjusted) - cameras.camera_centres_body(poses)) < 1e-5 * DISTANCE_M
+    np.testing.assert_allclose(adjusted[:, :3, :3], poses[:, :3, :3], atol=1e-6)
+    assert rc.rms(rc.reprojection_residuals(model)) < 1e-4
+
+
+def test_bundle_adjustment_without_priors_keeps_the_model_frame():
+    poses, intrinsics, points = synthetic_scene()
+    model = synthetic_model(poses, intrinsics, points, pixel_noise=0.3)
+    before, residual_before = model_poses(model), rc.rms(rc.reprojection_residuals(model))
+    rc.bundle_adjust(model, None)
+    after = model_poses(model)
+    assert rc.rms(cameras.camera_centres_body(after) - cameras.camera_centres_body(before)) < 0.01 * DISTANCE_M
+    assert rc.rms(rc.reprojection_residuals(model)) < residual_before
+
+
+@pytest.mark.parametrize(
+    "camera_position_sigma_m, tie_point_sigma_px, overfit",
+    [
+        (0.05, 1.0, False),  # healthy: exact tie points fix the camera path, the priors only the frame
+        (1e-4, 1.0, True),  # a tiny prior sigma: the priors dominate
+        (0.05, 1e3, True),  # poor tie points (stated 1000 px): the priors dominate
+    ],
+)
+def test_overfit_flag_follows_the_balance_of_priors_and_tie_points(camera_position_sigma_m, tie_point_sigma_px, overfit):
+    poses, intrinsics, points = synthetic_scene()
+    model = synthetic_model(poses, intrinsics, points)
+    prior_centres, priors = true_centres_by_image_id(poses, noise_m=camera_position_sigma_m, seed=11)
+    rc.bundle_adjust(model, priors, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px)
+    report = rc.model_report(model, poses, prior_centres, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px)
+    assert report.prior_overfit is overfit
+    if overfit:
+        assert report.cam_pos_rms_ratio < 0.2
+    else:
+        assert 0.7 < report.cam_pos_rms_ratio < 1.3
+        # The tie points beat the navigation: only the 7 similarity degrees of freedom keep prior noise,
+        # an RMS of about sqrt(7 / (3 n)) = 0.44 of the priors' error for n = 12.
+        assert report.cam_pos_true_rms_m < 0.7 * report.prior_pos_true_rms_m
+
+
+def test_sparse_reconstruction_round_trip_with_tracks(tmp_path):
+    poses, intrinsics, points = synthetic_scene(n_points=40)
+    model = synthetic_model(poses, intrinsics, points, pixel_noise=0.2, seed=3)
+    prior_centres, _ = true_centres_by_image_id(poses, noise_m=0.05)
+    result = rc.SparseReconstruction(model, rc.model_report(model, poses, prior_centres, camera_position_sigma_m=0.05, tie_point_sigma_px=1.0), prior_centres)
+    result.write(tmp_path / "sparse")
+    again = rc.SparseReconstruction.read(tmp_path / "sparse")
+    assert again.report == result.report
+    np.testing.assert_array_equal(again.prior_positions, prior_centres)
+    ids, xyz = again.points3d()
+    np.testing.assert_allclose(xyz, points, atol=1e-12)
+    tracks = again.tracks()
+    assert len(tracks["point"]) == len(points) * N_IMAGES
+    # Every observation is the point's projection through its image's pose, up to the added pixel noise.
+    poses_again = again.body_to_camera()
+    projected = np.array([
+        cameras.project(poses_again[image][:3, :3] @ xyz[point] + poses_again[image][:3, 3], again.intrinsics())
+        for point, image in zip(tracks["point"], tracks["image"])
+    ])
+    assert rc.rms(tracks["uv"] - projected) == pytest.approx(0.2 * np.sqrt(2), rel=0.15)
+
+
+# ----------------------------------------------------------------------------------------------
+# The whole pipeline on synthetic images
+# ----------------------------------------------------------------------------------------------
+
+
+def textured_sphere_images(n_images=18, size=256, distance_m=4.0, seed=1):
+    """Lambertian unit sphere with a multi-scale albedo texture, ray-cast; the body turns 360/n degrees per image."""
+    rng = np.random.default_rng(seed)
+    n_waves = 60
+    frequencies = rng.normal(size=(n_waves, 3))
+    magnitudes = np.exp(rng.uniform(np.log(10.0), np.log(80.0), size=n_waves))
+    frequencies *= (magnitudes / np.linalg.norm(frequencies, axis=1))[:, None]
+    amplitudes, phases = (10.0 / magnitudes) ** 0.5, rng.uniform(0.0, 2.0 * np.pi, n_waves)
+    intrinsics = cameras.intrinsics_for_body(size, distance_m, 1.0)
+    poses = cameras.body_to_camera_poses(n_images, distance_m, view_latitude_deg=20.0)
+    rows, cols = np.mgrid[0:size, 0:size] + 0.5
+    rays_cam = cameras.pixel_rays_cam(intrinsics, cols, rows)
+    light_cam = cameras.light_dir_cam(30.0)
+    images = []
+    for pose in poses:
+        rotation = pose[:3, :3]
+        centre = -rotation.T @ pose[:3, 3]
+        rays_body = rays_cam @ rotation
+        half_b = rays_body @ centre
+        discriminant = half_b**2 - (centre @ centre - 1.0)
+        hit = discriminant > 0
+        surface = centre + (-half_b - np.sqrt(np.where(hit, discriminant, 0.0)))[..., None] * rays_body
+        albedo = 0.5 + 0.45 * np.tanh((np.cos(surface @ frequencies.T + phases) * amplitudes).sum(-1) / 3.0)
+        images.append(np.where(hit, albedo * np.clip(surface @ (rotation.T @ light_cam), 0.0, None), 0.0))
+    return images, intrinsics, poses
+
+
+@pytest.fixture(scope="module")
+def sphere_images():
+    return textured_sphere_images()
+
+
+@pytest.mark.parametrize("use_priors", [True, False])
+def test_reconstruct_images_end_to_end(sphere_images, tmp_path, use_priors):
+    images, intrinsics, poses = sphere_images
+    result = rc.reconstruct_images(
+        images, intrinsics, tmp_path / "work", true_body_to_camera=poses, use_priors=use_priors,
+        camera_position_sigma_m=0.01, tie_point_sigma_px=1.0, num_threads=2,
+    )
+    report = result.report
+    assert report.n_images_registered >= 16 and report.n_points3d > 200
+    assert report.reproj_rms_px < 1.0
+    assert report.world_frame == ("body" if use_priors else "arbitrary")
+    # Within 2 % of the distance and 1 degree of the truth: a wrong frame convention would be off by the whole distance.
+    assert report.cam_pos_true_rms_m < 0.02 * 4.0 and report.cam_rot_true_rms_deg < 1.0
+    if use_priors:
+        assert report.cam_pos_rms_m is not None and report.prior_overfit is not None
+        estimated = result.body_to_camera()
+        index = result.registered_indices[0]
+        assert np.linalg.norm(cameras.camera_centres_body(estimated[index][None])[0] - cameras.camera_centres_body(poses[index][None])[0]) < 0.1
+    else:
+        assert report.cam_pos_rms_m is None and report.alignment_scale > 0
+    tracks = result.tracks()
+    assert set(np.unique(tracks["image"])) <= set(result.registered_indices.tolist())
+    assert tracks["point"].max() < report.n_points3d
