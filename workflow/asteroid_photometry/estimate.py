@@ -48,6 +48,9 @@ __all__ = [
     "minnaert_brightness",
     "fit_iwano_linear",
     "fit_koizumi_lm",
+    "solve_arrow_system",
+    "arrow_covariance",
+    "light_std_deg",
     "initial_albedo_and_k",
     "profile_cost",
     "search_light",
@@ -634,28 +637,14 @@ def _solve_block_lm(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev, ver
             break
 
         while True:  # raise the damping until a step lowers the cost
-            a11 = u_rr + damping * scale_point[0]
-            a22 = u_kk + damping * scale_point[1]
-            det = a11 * a22 - u_rk * u_rk
-            i11, i22, i12 = a22 / det, a11 / det, -u_rk / det
-            # Y_p = W_p U_p^-1 (rows: a, b; columns: albedo, k).
-            y_ar = w_ar * i11 + w_ak * i12
-            y_ak = w_ar * i12 + w_ak * i22
-            y_br = w_br * i11 + w_bk * i12
-            y_bk = w_br * i12 + w_bk * i22
-            # Schur complement S = V - sum_p Y_p W_p^T and its right-hand side.
-            s_aa = v_aa + damping * scale_light[0] - float(np.sum(y_ar * w_ar + y_ak * w_ak))
-            s_ab = v_ab - float(np.sum(y_ar * w_br + y_ak * w_bk))
-            s_bb = v_bb + damping * scale_light[1] - float(np.sum(y_br * w_br + y_bk * w_bk))
-            rhs_a = -g_a + float(np.sum(y_ar * g_r + y_ak * g_k))
-            rhs_b = -g_b + float(np.sum(y_br * g_r + y_bk * g_k))
-            s_det = s_aa * s_bb - s_ab * s_ab
-            step_a = (s_bb * rhs_a - s_ab * rhs_b) / s_det
-            step_b = (s_aa * rhs_b - s_ab * rhs_a) / s_det
-            # Back-substitute each point's step: U_p d_p = -g_p - W_p^T d_light.
-            q_r = -g_r - w_ar * step_a - w_br * step_b
-            q_k = -g_k - w_ak * step_a - w_bk * step_b
-            step = np.concatenate([[step_a, step_b], i11 * q_r + i12 * q_k, i12 * q_r + i22 * q_k])
+            step_light, step_albedo, step_k = solve_arrow_system(
+                (v_aa + damping * scale_light[0], v_ab, v_bb + damping * scale_light[1]),
+                (u_rr + damping * scale_point[0], u_rk, u_kk + damping * scale_point[1]),
+                (w_ar, w_ak, w_br, w_bk),
+                (g_a, g_b),
+                (g_r, g_k),
+            )
+            step = np.concatenate([step_light, step_albedo, step_k])
             if not np.all(np.isfinite(step)):
                 status = False, "the damped normal equations became singular"
                 break
@@ -696,6 +685,112 @@ def _solve_block_lm(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev, ver
             residual, columns = problem._evaluate(x, True)
     success, message = status
     return x, cost, n_iterations, nfev, success, message
+
+
+# --------------------------------------------------------------------------
+# Arrow-structured normal equations (shared with varpro and fisher)
+# --------------------------------------------------------------------------
+#
+# Every residual depends on the light's two tangent coordinates (a, b) and on
+# its own point's two parameters (albedo or log albedo, and k). J^T W J is
+# therefore an "arrow": a 2x2 light block V, a 2x2 block U_p per point and a
+# 2x2 coupling W_p per point (rows a, b; columns the point's two parameters),
+# zero elsewhere. Blocks are passed as tuples of their distinct entries so
+# that per-point values are flat (m,) arrays: V = (v_aa, v_ab, v_bb),
+# U = (u_11, u_12, u_22), W = (w_a1, w_a2, w_b1, w_b2).
+
+
+def solve_arrow_system(light_block, point_blocks, couplings, light_gradient, point_gradient):
+    """Solve ``[[V, W], [W^T, U]] [d_light; d_point] = -[g_light; g_point]`` by the Schur complement.
+
+    ``light_block`` = (v_aa, v_ab, v_bb) floats, ``point_blocks`` = (u_11,
+    u_12, u_22) and ``couplings`` = (w_a1, w_a2, w_b1, w_b2) arrays (m,),
+    ``light_gradient`` = (g_a, g_b), ``point_gradient`` = (g_1, g_2) arrays (m,).
+    Damping, if any, is already added to the diagonals by the caller. The
+    point blocks are eliminated (S = V - sum_p W_p U_p^-1 W_p^T), the 2x2
+    light system solved, and each point's step back-substituted:
+    ``U_p d_p = -g_p - W_p^T d_light``. O(m); returns ``(step_light (2,),
+    step_1 (m,), step_2 (m,))``, non-finite where a block is singular.
+    """
+    v_aa, v_ab, v_bb = light_block
+    u_11, u_12, u_22 = point_blocks
+    w_a1, w_a2, w_b1, w_b2 = couplings
+    g_a, g_b = light_gradient
+    g_1, g_2 = point_gradient
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = u_11 * u_22 - u_12 * u_12
+        i11, i22, i12 = u_22 / det, u_11 / det, -u_12 / det
+        # Y_p = W_p U_p^-1 (rows: a, b; columns: the point's two parameters).
+        y_a1 = w_a1 * i11 + w_a2 * i12
+        y_a2 = w_a1 * i12 + w_a2 * i22
+        y_b1 = w_b1 * i11 + w_b2 * i12
+        y_b2 = w_b1 * i12 + w_b2 * i22
+        # Schur complement S = V - sum_p Y_p W_p^T and its right-hand side.
+        s_aa = v_aa - float(np.sum(y_a1 * w_a1 + y_a2 * w_a2))
+        s_ab = v_ab - float(np.sum(y_a1 * w_b1 + y_a2 * w_b2))
+        s_bb = v_bb - float(np.sum(y_b1 * w_b1 + y_b2 * w_b2))
+        rhs_a = -g_a + float(np.sum(y_a1 * g_1 + y_a2 * g_2))
+        rhs_b = -g_b + float(np.sum(y_b1 * g_1 + y_b2 * g_2))
+        s_det = s_aa * s_bb - s_ab * s_ab
+        step_a = (s_bb * rhs_a - s_ab * rhs_b) / s_det
+        step_b = (s_aa * rhs_b - s_ab * rhs_a) / s_det
+        # Back-substitute each point's step: U_p d_p = -g_p - W_p^T d_light.
+        q_1 = -g_1 - w_a1 * step_a - w_b1 * step_b
+        q_2 = -g_2 - w_a2 * step_a - w_b2 * step_b
+        return np.array([step_a, step_b]), i11 * q_1 + i12 * q_2, i12 * q_1 + i22 * q_2
+
+
+def arrow_covariance(light_block, point_blocks, couplings):
+    """Inverse of an arrow-structured ``J^T W J``: the light block and each point's marginal 2x2 block.
+
+    Same block arguments as :func:`solve_arrow_system` (undamped). With
+    ``S = V - sum_p W_p U_p^-1 W_p^T`` the light covariance is ``S^-1`` and
+    point p's marginal covariance ``U_p^-1 + Y_p^T S^-1 Y_p`` with ``Y_p =
+    W_p U_p^-1``: its own uncertainty plus what the light's uncertainty
+    passes on to it. With weights ``1/sigma_j**2`` in J^T W J this is the
+    Gauss-Newton covariance of the weighted least-squares estimate (and, at
+    the true parameters, the Cramer-Rao bound).
+
+    Returns ``(light_cov (2, 2), var_1 (m,), var_2 (m,), cov_12 (m,))``.
+    """
+    v_aa, v_ab, v_bb = light_block
+    u_11, u_12, u_22 = point_blocks
+    w_a1, w_a2, w_b1, w_b2 = couplings
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = u_11 * u_22 - u_12 * u_12
+        i11, i22, i12 = u_22 / det, u_11 / det, -u_12 / det
+        y_a1 = w_a1 * i11 + w_a2 * i12
+        y_a2 = w_a1 * i12 + w_a2 * i22
+        y_b1 = w_b1 * i11 + w_b2 * i12
+        y_b2 = w_b1 * i12 + w_b2 * i22
+        s_aa = v_aa - float(np.sum(y_a1 * w_a1 + y_a2 * w_a2))
+        s_ab = v_ab - float(np.sum(y_a1 * w_b1 + y_a2 * w_b2))
+        s_bb = v_bb - float(np.sum(y_b1 * w_b1 + y_b2 * w_b2))
+        light_cov = np.linalg.inv(np.array([[s_aa, s_ab], [s_ab, s_bb]]))
+        c_aa, c_ab, c_bb = light_cov[0, 0], light_cov[0, 1], light_cov[1, 1]
+        var_1 = i11 + c_aa * y_a1 * y_a1 + 2.0 * c_ab * y_a1 * y_b1 + c_bb * y_b1 * y_b1
+        var_2 = i22 + c_aa * y_a2 * y_a2 + 2.0 * c_ab * y_a2 * y_b2 + c_bb * y_b2 * y_b2
+        cov_12 = i12 + c_aa * y_a1 * y_a2 + c_ab * (y_a1 * y_b2 + y_b1 * y_a2) + c_bb * y_b1 * y_b2
+    return light_cov, var_1, var_2, cov_12
+
+
+def light_std_deg(light_tangent, light_cov_tangent) -> float:
+    """Angular standard deviation (degrees) of a light direction from its tangent-coordinate covariance.
+
+    ``l = normalize((a, b, -1))``; with ``M = dl/d(a, b)`` (3x2) the
+    direction's covariance is ``M C M^T``, and for small errors the expected
+    squared angle between estimate and truth is its trace. Returns
+    ``degrees(sqrt(trace(M^T M C)))``: the RMS angular error, summed over
+    both directions across the line of sight of the light.
+    """
+    a, b = np.asarray(light_tangent, dtype=np.float64)
+    norm = np.sqrt(1.0 + a * a + b * b)
+    light = np.array([a, b, -1.0]) / norm
+    jacobian = np.column_stack(
+        [(np.array([1.0, 0.0, 0.0]) - light * light[0]) / norm, (np.array([0.0, 1.0, 0.0]) - light * light[1]) / norm]
+    )
+    variance = float(np.trace(jacobian.T @ jacobian @ np.asarray(light_cov_tangent, dtype=np.float64)))
+    return float(np.degrees(np.sqrt(max(variance, 0.0))))
 
 
 SOLVERS = ("block_lm", "least_squares")
@@ -802,15 +897,6 @@ def fit_koizumi_lm(
 # --------------------------------------------------------------------------
 
 
-def _rotation_about_y(angle):
-    """Rotation matrices (..., 3, 3) about the camera y axis (the spin axis here)."""
-    c, s = np.cos(angle), np.sin(angle)
-    zero, one = np.zeros_like(angle), np.ones_like(angle)
-    return np.stack(
-        [np.stack([c, zero, s], -1), np.stack([zero, one, zero], -1), np.stack([-s, zero, c], -1)], -2
-    )
-
-
 def synthetic_observations(
     n_points: int,
     n_views: int,
@@ -890,9 +976,20 @@ def synthetic_observations(
     theta = theta.ravel()[keep_point]
     point_index = point_index[keep_point]
 
-    rotation = _rotation_about_y(theta)
-    normal_cam = np.einsum("nij,nj->ni", rotation, normal_body[point_index])
-    position_cam = np.einsum("nij,nj->ni", rotation, position_body[point_index])
+    # Rotate by theta about y: (x, y, z) -> (c x + s z, y, c z - s x), without per-row matrices.
+    cos_theta, sin_theta = np.cos(theta), np.sin(theta)
+
+    def rotated(vectors_body):
+        vectors = vectors_body[point_index]
+        out = np.empty_like(vectors)
+        out[:, 0] = cos_theta * vectors[:, 0] + sin_theta * vectors[:, 2]
+        out[:, 1] = vectors[:, 1]
+        out[:, 2] = cos_theta * vectors[:, 2] - sin_theta * vectors[:, 0]
+        return out
+
+    normal_cam = rotated(normal_body)
+    position_cam = rotated(position_body)
+    del cos_theta, sin_theta
     position_cam[:, 2] += camera_distance_m
     view_cam = -position_cam / np.linalg.norm(position_cam, axis=1, keepdims=True)
     normal_cam /= np.linalg.norm(normal_cam, axis=1, keepdims=True)
