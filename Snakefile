@@ -13,6 +13,7 @@ include: "workflow/rules/render.smk"
 include: "workflow/rules/observe.smk"
 include: "workflow/rules/fit.smk"
 include: "workflow/rules/tabulate.smk"
+include: "workflow/rules/reconstruct.smk"
 
 
 rule all:
@@ -21,4 +22,5 @@ rule all:
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
         expand("results/tables/{sweep}.csv", sweep=SWEEPS),
+        expand("results/tables/table2.csv", _=[1] if PRIOR_SETTINGS else []),
         expand("results/plots/error_map_{map_name}.png", map_name=[m["name"] for m in config["surface_maps"]]),

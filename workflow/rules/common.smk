@@ -22,6 +22,7 @@ SWEEPS = {
     "surface_maps": [set_id for set_id, s in SETS.items() if s.surface_map],
 }
 SWEEPS = {sweep: ids for sweep, ids in SWEEPS.items() if ids}
+PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["priors"]] if config["reconstruction"]["enabled"] else []
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
 ESTIMATORS = config["estimators"]
 NAME = "[A-Za-z0-9-]+"
@@ -33,6 +34,7 @@ wildcard_constraints:
     light_tag="light[^/_]+",
     method="|".join(ESTIMATORS),
     sweep="|".join(SWEEPS) or "none",
+    priors="on|off",
 
 
 def image_set(wildcards):

@@ -1,0 +1,131 @@
+"""From a sparse reconstruction to the estimator's input: an oriented point cloud that knows which images see it.
+
+This is the CPU stand-in for PMVS's output (Table 2 of the paper): points,
+outward normals and, per point, the images that see it, built from the
+structure-from-motion model alone (no shape model, no true pose):
+
+1. the triangulated points with tracks of at least ``min_track`` images;
+2. outliers removed (open3d's statistical outlier removal: a point whose
+   mean distance to its neighbours is far above the cloud's typical value);
+3. normals by local plane fits (open3d ``estimate_normals``), turned to face
+   the cameras of the point's track;
+4. visibility: a point is seen by a registered image when it faces the
+   camera (``cos_o >= min_cos_emission``) and a ray from the camera reaches
+   it before any other surface, tested against a Poisson surface meshed from
+   the cloud itself (open3d), so the set grows beyond the SIFT track;
+5. brightness: the linear image sampled (bilinearly) at the point's
+   projection through the reconstructed camera.
+
+The result is an ``estimate.Observations`` in the reconstructed cameras'
+frames, plus the point cloud for scoring after registration.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from .cameras import Intrinsics, project
+from .estimate import Observations
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class OrientedCloud:
+    points: np.ndarray  # (N, 3) reconstruction frame
+    normals: np.ndarray  # (N, 3) unit, outward
+    track_length: np.ndarray  # (N,) SIFT track length
+
+
+def oriented_cloud(points, track_point, track_image, camera_centres: dict, min_track=3, outlier_neighbours=16, outlier_std=2.0, normal_neighbours=16) -> OrientedCloud:
+    """Filter the sparse points and give them normals facing the cameras that saw them."""
+    import open3d as o3d
+
+    track_length = np.bincount(track_point, minlength=len(points))
+    keep = np.flatnonzero(track_length >= min_track)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[keep]))
+    _, inliers = cloud.remove_statistical_outlier(nb_neighbors=outlier_neighbours, std_ratio=outlier_std)
+    keep = keep[np.asarray(inliers, dtype=int)]
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[keep]))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=normal_neighbours))
+    normals = np.asarray(cloud.normals)
+    # Face the mean direction towards the track's cameras.
+    centres = np.array([camera_centres[i] for i in track_image])
+    towards = centres - points[track_point]
+    towards /= np.linalg.norm(towards, axis=1, keepdims=True)
+    mean_towards = np.zeros_like(points)
+    np.add.at(mean_towards, track_point, towards)
+    flip = np.einsum("ij,ij->i", normals, mean_towards[keep]) < 0
+    normals[flip] *= -1
+    log.info("cloud: %d points with tracks >= %d, %d after outlier removal", int((track_length >= min_track).sum()), min_track, len(keep))
+    return OrientedCloud(points[keep], normals, track_length[keep])
+
+
+def poisson_surface(cloud: OrientedCloud, depth: int = 7):
+    """A closed surface through the cloud, for occlusion tests: (vertices, triangles)."""
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+    pcd.normals = o3d.utility.Vector3dVector(cloud.normals)
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=depth)
+    return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+
+
+def visible_pairs(cloud: OrientedCloud, body_to_camera: dict, min_cos_emission: float, occlusion_tolerance: float):
+    """(point, image) pairs where the point faces the camera and nothing of the cloud's surface hides it."""
+    import open3d as o3d
+
+    vertices, triangles = poisson_surface(cloud)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    point_ids, image_ids = [], []
+    for image, pose in body_to_camera.items():
+        rotation, translation = pose[:3, :3], pose[:3, 3]
+        centre = -rotation.T @ translation
+        to_camera = centre - cloud.points
+        distance = np.linalg.norm(to_camera, axis=1)
+        facing = np.einsum("ij,ij->i", cloud.normals, to_camera) / distance >= min_cos_emission
+        candidates = np.flatnonzero(facing)
+        directions = -to_camera[candidates] / distance[candidates, None]
+        rays = np.hstack([np.broadcast_to(centre, directions.shape), directions]).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        seen = hit >= distance[candidates] - occlusion_tolerance
+        point_ids.append(candidates[seen])
+        image_ids.append(np.full(int(seen.sum()), image))
+    return np.concatenate(point_ids), np.concatenate(image_ids)
+
+
+def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """The image at continuous pixel positions (corner of the top-left pixel at (0, 0))."""
+    return map_coordinates(image, [uv[:, 1] - 0.5, uv[:, 0] - 0.5], order=1, mode="constant", cval=0.0)
+
+
+def cloud_observations(
+    cloud: OrientedCloud, body_to_camera: dict, intrinsics: Intrinsics, images: list[np.ndarray], *,
+    min_cos_emission: float = 0.1, min_observations: int = 4, occlusion_tolerance: float | None = None,
+) -> tuple[Observations, np.ndarray]:
+    """The estimator's observations of the cloud; also returns the image index of every observation."""
+    if occlusion_tolerance is None:
+        extent = np.ptp(cloud.points, axis=0).max()
+        occlusion_tolerance = 0.02 * extent
+    point_index, image_index = visible_pairs(cloud, body_to_camera, min_cos_emission, occlusion_tolerance)
+    poses = np.array([body_to_camera[i] for i in image_index])
+    points_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.points[point_index]) + poses[:, :3, 3]
+    uv = project(points_cam, intrinsics)
+    inside = (uv[:, 0] >= 1) & (uv[:, 0] < intrinsics.width - 1) & (uv[:, 1] >= 1) & (uv[:, 1] < intrinsics.height - 1)
+    brightness = np.zeros(len(point_index))
+    for image in np.unique(image_index):
+        rows = np.flatnonzero((image_index == image) & inside)
+        brightness[rows] = sample_bilinear(images[image], uv[rows])
+    normal_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.normals[point_index])
+    view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
+    keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0)
+    counts = np.bincount(point_index[keep], minlength=len(cloud.points))
+    keep &= counts[point_index] >= min_observations
+    log.info("cloud observations: %d visible pairs, %d kept on %d points", len(point_index), int(keep.sum()), int((counts >= min_observations).sum()))
+    obs = Observations(point_index=point_index[keep], normal_cam=normal_cam[keep], view_cam=view_cam[keep], brightness=brightness[keep], n_points=len(cloud.points))
+    return obs, image_index[keep]

@@ -1,0 +1,81 @@
+# Table 2, from images alone: sparse reconstruction, registration to the
+# shape model, the estimators on the reconstructed cloud, refinement.
+
+
+rule reconstruct:
+    input:
+        images="results/render/{set_id}",
+    output:
+        model=directory("results/reconstruction/{set_id}/priors-{priors}"),
+    params:
+        use_priors=lambda wildcards: wildcards.priors == "on",
+        settings=config["reconstruction"],
+    threads: 2
+    log:
+        "logs/reconstruct/{set_id}/priors-{priors}.log",
+    benchmark:
+        "benchmarks/reconstruct/{set_id}/priors-{priors}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/reconstruct.py"
+
+
+rule register_cloud:
+    input:
+        model=rules.reconstruct.output.model,
+        shape=rules.prepare_shape.output.npz,
+    output:
+        npz="results/registration/{set_id}/priors-{priors}.npz",
+        summary="results/registration/{set_id}/priors-{priors}.json",
+    params:
+        settings=config["reconstruction"],
+    log:
+        "logs/register_cloud/{set_id}/priors-{priors}.log",
+    benchmark:
+        "benchmarks/register_cloud/{set_id}/priors-{priors}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/register_cloud.py"
+
+
+rule fit_cloud:
+    input:
+        registration=rules.register_cloud.output.npz,
+        registration_summary=rules.register_cloud.output.summary,
+        model=rules.reconstruct.output.model,
+        images="results/render/{set_id}",
+        shape=rules.prepare_shape.output.npz,
+    output:
+        summary="results/fits_cloud/{set_id}/priors-{priors}/{method}.json",
+        errors="results/fits_cloud/{set_id}/priors-{priors}/{method}.npz",
+    params:
+        settings=config["reconstruction"],
+    log:
+        "logs/fit_cloud/{set_id}/priors-{priors}/{method}.log",
+    benchmark:
+        "benchmarks/fit_cloud/{set_id}/priors-{priors}/{method}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/fit_cloud.py"
+
+
+rule tabulate_table2:
+    input:
+        summaries=expand(
+            "results/fits_cloud/{set_id}/priors-{priors}/{method}.json",
+            set_id=BASE_SETS,
+            priors=PRIOR_SETTINGS,
+            method=ESTIMATORS,
+        ),
+    output:
+        csv=report("results/tables/table2.csv", caption="../report/table2.rst", category="Tables"),
+        markdown="results/tables/table2.md",
+    log:
+        "logs/tabulate_table2.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/tabulate_table2.py"
