@@ -364,9 +364,11 @@ def run_efficiency(n_points, n_views, noise, seed, log=print):
         (REFERENCE, lambda: fit_koizumi_lm(obs, solver="block_lm")),
     )
     for name, fit in fits:
+        start = time.perf_counter()
         result = fit()
+        seconds = time.perf_counter() - start
         scores = efficiency(result, truth, bounds)
-        row = dict(method=name, n_views=n_views, n_obs=obs.n_obs, noise=noise) | scores  # scores' n_points: points scored
+        row = dict(method=name, n_views=n_views, n_obs=obs.n_obs, noise=noise, seconds=seconds) | scores  # n_points: scored
         if hasattr(result, "albedo_std"):
             row["predicted_over_bound_light_std"] = result.light_std_deg / bounds["light_std_deg"]
             row["predicted_over_bound_k_var_median"] = float(np.nanmedian(result.minnaert_k_std**2 / bounds["k_var"]))
@@ -393,11 +395,11 @@ def format_timing_table(rows):
 
 
 def format_efficiency_table(rows):
-    header = f"{'method':<26} {'points':>8} {'noise':>6} {'eff albedo':>10} {'eff k':>7} {'light err deg':>13} {'CRB std deg':>11} {'err/std':>7} {'Mahal.':>6}"
+    header = f"{'method':<26} {'points':>8} {'noise':>6} {'seconds':>8} {'eff albedo':>10} {'eff k':>7} {'light err deg':>13} {'CRB std deg':>11} {'err/std':>7} {'Mahal.':>6}"
     lines = [header, "-" * len(header)]
     for row in rows:
         lines.append(
-            f"{row['method']:<26} {row['n_points']:>8,} {row['noise']:>6.3g} {row['albedo_efficiency']:>10.3f} {row['k_efficiency']:>7.3f} "
+            f"{row['method']:<26} {row['n_points']:>8,} {row['noise']:>6.3g} {row['seconds']:>8.3g} {row['albedo_efficiency']:>10.3f} {row['k_efficiency']:>7.3f} "
             f"{row['light_error_deg']:>13.2e} {row['light_std_deg']:>11.2e} {row['light_error_sigma']:>7.2f} {row['light_mahalanobis']:>6.2f}"
         )
     return "\n".join(lines)

@@ -155,7 +155,7 @@ class PointBlocks:
     """The rows of the fitted points, regrouped for streamed passes.
 
     Points with at least ``min_observations`` rows (and, if ``points`` is
-    given, only those) are grouped by their number of observations ``c``;
+    given, only those; :meth:`subset` cuts a smaller layout from this one) are grouped by their number of observations ``c``;
     each group is a dense block of shape (points, c), so a per-point value
     broadcasts along axis 1 and a per-point sum is a sum along it. The flat
     per-point arrays of the solvers list the points block by block
@@ -186,7 +186,6 @@ class PointBlocks:
         cos_emission = obs.cos_emission
         self.blocks: list[_Block] = []
         point_ids = []
-        offset = 0
         for count in np.unique(counts[eligible]):
             count = int(count)
             ids = np.flatnonzero(eligible & (counts == count))
@@ -195,12 +194,12 @@ class PointBlocks:
                 rows = order[rows]
             flat_rows = rows.ravel()
             normal = np.empty((3, flat_rows.size))
-            for axis in range(3):
-                normal[axis] = obs.normal_cam[flat_rows, axis]
+            for start in range(0, flat_rows.size, CHUNK_ROWS):  # row gathers in chunks: fastest, small temporaries
+                normal[:, start : start + CHUNK_ROWS] = obs.normal_cam[flat_rows[start : start + CHUNK_ROWS]].T
             self.blocks.append(
                 _Block(
                     count=count,
-                    offset=offset,
+                    offset=sum(block.n for block in self.blocks),
                     rows=rows,
                     normal=normal,
                     log_cos_o=np.log(cos_emission[rows]),
@@ -209,9 +208,11 @@ class PointBlocks:
                 )
             )
             point_ids.append(ids)
-            offset += ids.size
+        self._finish(point_ids)
+
+    def _finish(self, point_ids):
         self.point_ids = np.concatenate(point_ids) if point_ids else np.zeros(0, np.int64)
-        self.n_points = int(offset)
+        self.n_points = int(sum(block.n for block in self.blocks))
         self.n_rows = int(sum(block.rows.size for block in self.blocks))
         self._ones = {block.count: np.ones(block.count) for block in self.blocks}
         self.chunks = []
@@ -225,6 +226,37 @@ class PointBlocks:
         sample = [_strided(np.abs(b.brightness) * np.sqrt(self._inv_var_of(b)), stride) for b in self.blocks]
         self.typical_brightness = float(np.median(np.concatenate(sample))) if sample else 1.0
         self.typical_brightness = self.typical_brightness or 1.0
+
+    def subset(self, flat_points) -> "PointBlocks":
+        """A layout of some of these points (increasing flat indices), cut from this one's arrays."""
+        flat_points = np.asarray(flat_points, dtype=np.int64)
+        sub = object.__new__(PointBlocks)
+        sub.inv_var, sub.n_points_total, sub.chunk_rows = self.inv_var, self.n_points_total, self.chunk_rows
+        sub.blocks, point_ids = [], []
+        for block in self.blocks:
+            low, high = np.searchsorted(flat_points, [block.offset, block.offset + block.n])
+            local = flat_points[low:high] - block.offset
+            if local.size == 0:
+                continue
+            sub.blocks.append(
+                _Block(
+                    count=block.count,
+                    offset=sum(b.n for b in sub.blocks),
+                    rows=block.rows[local],
+                    normal=block.normal.reshape(3, block.n, block.count)[:, local].reshape(3, -1),
+                    log_cos_o=block.log_cos_o[local],
+                    brightness=block.brightness[local],
+                    inv_var=None if block.inv_var is None else block.inv_var[local],
+                    keep=None if block.keep is None else block.keep[local],
+                )
+            )
+            point_ids.append(self.point_ids[block.offset + local])
+        sub._finish(point_ids)
+        return sub
+
+    def rows(self) -> np.ndarray:
+        """Row indices (into the Observations) of every row of the layout."""
+        return np.concatenate([block.rows.ravel() for block in self.blocks]) if self.blocks else np.zeros(0, np.int64)
 
     def ones(self, count):
         return self._ones[count]
@@ -795,15 +827,13 @@ def _evenly_spaced(ids, n):
     return ids[np.linspace(0, ids.size - 1, n).astype(np.int64)]
 
 
-def _lambert_guess(obs: Observations, point_ids):
-    """Iwano's linear fit with k = 1 on the rows of some points: a cheap light guess, or None."""
-    rows = np.flatnonzero(np.isin(obs.point_index, point_ids))
+def _lambert_guess(obs: Observations, rows):
+    """Iwano's linear fit with k = 1 on some rows: a cheap light guess (tangent coordinates), or None."""
     if rows.size < 3:
         return None
     sub = Observations(obs.point_index[rows], obs.normal_cam[rows], obs.view_cam[rows], obs.brightness[rows], obs.n_points)
     try:
-        light = fit_iwano_linear(sub, 1.0).light_dir_cam
-        return tangent_from_light(light)
+        return tangent_from_light(fit_iwano_linear(sub, 1.0).light_dir_cam)
     except ValueError:
         return None
 
@@ -921,7 +951,10 @@ def fit_varpro(
         observations) are dropped and the fit redone, until no observation
         changes status or ``max_rejection_rounds`` rounds. Observations are
         rejected one by one, never whole points, but a point left with
-        fewer than two is not fitted (NaN).
+        fewer than two is not fitted (NaN). With ``loss="linear"`` the
+        outliers are found after a Huber fit (a least-squares fit bends
+        towards them and hides them), and the kept observations are then
+        refitted by least squares.
     light_init : None, "iwano" or (3,) array
         None: grid search and the reduced problem on a subsample
         (``grid_points`` and ``search_points`` points). "iwano": Iwano's
@@ -1012,17 +1045,16 @@ def fit_varpro(
     search_log = _SolveLog()
     if light_init is None or (isinstance(light_init, str) and light_init == "iwano"):
         sub_ids = _evenly_spaced(np.arange(layout.n_points), search_points)
-        grid_ids = layout.point_ids[_evenly_spaced(sub_ids, grid_points)]
-        guess = _lambert_guess(obs, grid_ids)
+        grid_layout = layout.subset(_evenly_spaced(sub_ids, grid_points))
+        guess = _lambert_guess(obs, grid_layout.rows())
         if light_init is None:
-            grid_layout = PointBlocks(obs, min_observations=min_observations, points=grid_ids, inv_var=inv_var)
             tangent = _grid_search(grid_layout, guess)
         elif guess is None:
             raise ValueError("fit_varpro: Iwano's linear fit failed on the subsample (light_init='iwano')")
         else:
             tangent = guess
         if layout.n_points > sub_ids.size:
-            sub_layout = PointBlocks(obs, min_observations=min_observations, points=layout.point_ids[sub_ids], inv_var=inv_var)
+            sub_layout = layout.subset(sub_ids)
             tangent, _ = solve_reduced(sub_layout, tangent, step_tol, search_log)
     elif isinstance(light_init, str):
         raise ValueError(f"fit_varpro: light_init must be None, 'iwano' or a (3,) vector, got {light_init!r}")
