@@ -8,10 +8,11 @@ k can be scored point by point against the truth, it has to be placed on
 the shape model. :func:`register_to_shape` does that in two stages, the
 scheme of ``docs/method.md`` section 3:
 
-1. **Global rough alignment, no initial guess.** Both clouds are first
-   normalised to the same size (centroid at the origin, RMS radius of the
-   voxel-downsampled surface 1), because open3d's feature-based RANSAC
-   estimates a rigid transform only. FPFH features + RANSAC
+1. **Global rough alignment, no initial guess.** The source is thinned on
+   a voxel grid and stray points (outliers) are removed by their distance
+   to their neighbours. Both clouds are then normalised to the same size
+   (centroid at the origin, RMS radius of the thinned surface 1), because
+   open3d's feature-based RANSAC estimates a rigid transform only. FPFH features + RANSAC
    (``registration_ransac_based_on_feature_matching``) give one candidate
    pose; a principal-axis alignment gives another. Itokawa is elongated and
    nearly symmetric, so each candidate is also tried turned by 180 degrees
@@ -23,7 +24,8 @@ scheme of ``docs/method.md`` section 3:
 2. **ICP.** The best candidate is refined by point-to-point ICP with
    scaling (``TransformationEstimationPointToPoint(with_scaling=True)``),
    then by rigid point-to-plane ICP against dense surface samples with the
-   facets' normals.
+   facets' normals. The best other pose of the search is refined the same
+   way, to measure how clearly the chosen pose wins (``ambiguity``).
 
 The result is scored against the exact mesh (open3d ``RaycastingScene``),
 not against samples. ``success`` is decided by :data:`SUCCESS_RMS_REL`,
@@ -54,14 +56,18 @@ logger = logging.getLogger(__name__)
 
 # ---------------------------------------------------------------- thresholds
 #
-# ``success`` needs all three of the conditions below. Measured on Itokawa
-# (tests/test_register.py and a 20-trial benchmark on the Gaskell model):
-# correct poses of clouds with 0.2-0.5 % noise, 20 % outliers and
-# holes give RMS 0.2-0.6 %, fitness 0.98-1.0 and ambiguity 0.03-0.3; a
-# sphere or a random blob gives fitness 0.5-0.65; an ellipsoid of
-# Itokawa's size fits to RMS 0.95 % and fitness 0.96, and only the
-# ambiguity (0.96) rejects it; the Ostro model turned end over end and
-# polished by ICP alone reaches fitness 0.97 at RMS 1.02 %.
+# ``success`` needs the three conditions below, and a plausible scale: within
+# a factor of 2 of the size estimate (scaled ICP can shrink a cloud that fits
+# nowhere onto one spot of the surface, where it then fits perfectly).
+# Measured on Itokawa (tests/test_register.py, and trials on the Gaskell
+# model with 20,000 points): correct poses of clouds with 0.2-0.8 % noise,
+# 20-40 % outliers, holes of 30-50 % and missing caps give RMS 0.2-0.9 %,
+# fitness 0.95-1.0 and ambiguity 0.03-0.3; a sphere or a random blob gives
+# fitness 0.49-0.64; an ellipsoid of Itokawa's size fits to RMS 0.96 % at
+# fitness 0.96, and only its ambiguity (0.78) rejects it; Ostro's model
+# turned end over end and polished by ICP alone reaches fitness 0.97 at
+# RMS 1.02 %. A correct pose of a cloud noisier than about 1 % of the length
+# fails the RMS test: at that noise the tests cannot tell it from a wrong one.
 
 #: Inlier band: a registered point within this fraction of the body length
 #: from the true surface counts as an inlier (fitness, inlier RMSE).
@@ -74,9 +80,9 @@ SUCCESS_RMS_REL = 0.01
 #: Fitness above this: the fraction of the registered points (after outlier
 #: removal) within the inlier band. Fails shapes that are not the body.
 SUCCESS_FITNESS = 0.9
-#: Ambiguity below this: the best other pose tried (turned by more than 10
-#: degrees) must have a truncated mean-square distance at least twice the
-#: chosen pose's (an RMS sqrt(2) larger). Fails clouds whose pose is not
+#: Ambiguity below this: on the chosen pose's inliers, the best other pose
+#: tried (turned by more than 45 degrees) must have a truncated mean-square
+#: distance at least twice the chosen pose's (an RMS sqrt(2) larger). Fails clouds whose pose is not
 #: determined by their shape: near-ellipsoids, or patches too small or too
 #: smooth, where Itokawa turned end over end fits about as well. Not
 #: applied when no other pose was tried (``global_search=False``).
@@ -89,8 +95,17 @@ VOXEL_SIZE_REL = 0.02
 # shrinks a cloud's RMS radius, so the normalised source comes out too large:
 # shrinking is tried first.
 _RESIZE_FACTORS = (1.0, 0.8, 1.2, 0.65)
-# Candidates turned by more than this from the best count as other poses.
-_DISTINCT_POSE_DEG = 10.0
+# Candidates turned by more than this from the best count as other poses
+# (closer ones are mostly starts in the best pose's basin that the short
+# candidate ICP has not quite brought home).
+_DISTINCT_POSE_DEG = 45.0
+# Other poses of the global search refined by the final ICP to measure the
+# ambiguity, and the source points they are refined and scored on.
+_RIVALS_REFINED = 2
+_RIVAL_POINTS = 3000
+# A pose whose scale differs from the size estimate by more than this factor
+# is implausible (see _Candidate).
+_SCALE_TOLERANCE = 2.0
 # Source points on which each global candidate is polished and scored.
 _CANDIDATE_POINTS = 1500
 # The four proper rotations that map the principal axes onto themselves:
@@ -114,6 +129,8 @@ def decompose_similarity(transform) -> tuple[float, np.ndarray, np.ndarray]:
     transform = np.asarray(transform, dtype=np.float64)
     linear = transform[:3, :3]
     scale = float(np.cbrt(np.linalg.det(linear)))
+    if not scale > 0:
+        raise ValueError(f"not a similarity without reflection: determinant {np.linalg.det(linear):.3g}")
     # The nearest rotation to linear / scale (exact for a true similarity).
     u, _, vt = np.linalg.svd(linear / scale)
     rotation = u @ vt
@@ -278,16 +295,17 @@ class RegistrationResult:
       frame, ``x_body = scale * rotation @ x + translation_m``.
     - ``success``: ``rms_distance_rel < success_rms_rel``, ``fitness >
       success_fitness`` and ``ambiguity < success_ambiguity`` (the
-      thresholds used are stored; defaults ``SUCCESS_*``).
+      thresholds used are stored; defaults ``SUCCESS_*``), and ``scale``
+      within a factor of 2 of the estimate from the clouds' sizes.
     - ``fitness``: fraction of the registered points (the input after
       outlier removal and voxel thinning) within ``inlier_distance_m`` of
       the true surface; ``inlier_rmse_m`` their RMS distance to it;
       ``rms_distance_rel`` = ``inlier_rmse_m / body_length_m``.
     - ``inlier_fraction_all``: the same fraction over all finite input
       points (outliers included).
-    - ``ambiguity``: truncated mean-square distance of the chosen pose over
-      that of the best other pose of the global search (0: unique, 1: another
-      pose fits as well; NaN when no other pose was tried).
+    - ``ambiguity``: on the chosen pose's inliers, its mean-square distance
+      over the truncated one of the best other pose of the global search
+      (0: unique, 1: another pose fits as well; NaN when none was tried).
     - ``seconds_global`` / ``seconds_icp``: wall time of the rough alignment
       (sampling the reference, thinning and cleaning the input, features,
       RANSAC, the candidate search) and of the final ICP (scaled
@@ -416,47 +434,81 @@ def _icp(source, target, init, distances, *, with_scaling, point_to_plane=False,
     return transform
 
 
-def _ambiguity(candidates, best) -> float:
-    """How well the best other pose fits, compared with the best: truncated mean-square distances, best over other.
+def _rotation_between_deg(transform_a, transform_b) -> float:
+    return rotation_angle_deg(decompose_similarity(transform_a)[1], decompose_similarity(transform_b)[1])
 
-    Other: turned by more than :data:`_DISTINCT_POSE_DEG` from ``best``. The
-    truncated mean square ``mean(min(d, inlier)^2)`` is ``inlier^2 (1 - score)``.
-    0 means every other pose is far worse; 1 means another pose (typically
-    the body turned end over end, or any pose of an ellipsoid) fits as well,
-    so the choice between them is not trustworthy. NaN without other poses.
+
+def _rivals(candidates, best, n_rivals):
+    """The best-scoring plausible candidates that are other poses than ``best`` and each other (> 45 degrees apart)."""
+    rivals = []
+    for candidate in sorted(candidates, key=lambda candidate: candidate.score, reverse=True):
+        if len(rivals) == n_rivals or not candidate.plausible:
+            break
+        if all(
+            _rotation_between_deg(candidate.input_to_body, other.input_to_body) > _DISTINCT_POSE_DEG
+            for other in [best, *rivals]
+        ):
+            rivals.append(candidate)
+    return rivals
+
+
+def _ambiguity(chosen, rival, inlier_distance) -> float:
+    """How well ``rival`` fits compared with ``chosen`` (0: far worse, 1: as well), on the same points.
+
+    On ``chosen``'s inliers (outliers are equally far from the surface in
+    every pose and would even the scores out): ``chosen``'s mean-square
+    distance over ``rival``'s truncated mean square ``mean(min(d, inlier)^2)``.
     """
-    _, best_rotation, _ = decompose_similarity(best[3])
-    others = [
-        candidate[0]
-        for candidate in candidates
-        if rotation_angle_deg(decompose_similarity(candidate[3])[1], best_rotation) > _DISTINCT_POSE_DEG
-    ]
-    if not others:
+    inliers = chosen.distances <= inlier_distance
+    if not inliers.any():
         return float("nan")
-    return float((1.0 - best[0]) / max(1.0 - max(others), 1e-12))
+    rival_mean_square = np.mean(np.minimum(rival.distances[inliers], inlier_distance) ** 2)
+    return float(np.mean(chosen.distances[inliers] ** 2) / max(rival_mean_square, 1e-300))
 
 
-def _dense_points(points, n_neighbours, distance_ratio) -> np.ndarray:
+def _dense_points(points, n_neighbours, distance_ratio, passes=3) -> np.ndarray:
     """Mask of points whose mean distance to their nearest neighbours is at most ``distance_ratio`` x the median.
 
     On a voxel-thinned cloud the surface is sampled about evenly, so stray
     points in the empty space around it stand out by their distance to their
     neighbours. The median is robust to them (open3d's statistical outlier
     removal thresholds on mean + k std, which a fifth of outliers inflates
-    until it removes almost nothing).
+    until it removes almost nothing). Repeated up to ``passes`` times: with
+    many outliers (40 %) the first pass leaves some, which then stand alone.
     """
     from scipy.spatial import cKDTree
 
-    if len(points) <= n_neighbours:
-        return np.ones(len(points), dtype=bool)
-    distances, _ = cKDTree(points).query(points, n_neighbours + 1)
-    mean_distance = distances[:, 1:].mean(axis=1)
-    return mean_distance <= distance_ratio * np.median(mean_distance)
+    kept = np.ones(len(points), dtype=bool)
+    for _ in range(passes):
+        index = np.flatnonzero(kept)
+        if len(index) <= n_neighbours:
+            break
+        distances, _ = cKDTree(points[index]).query(points[index], n_neighbours + 1)
+        mean_distance = distances[:, 1:].mean(axis=1)
+        stray = mean_distance > distance_ratio * np.median(mean_distance)
+        if not stray.any():
+            break
+        kept[index[stray]] = False
+    return kept
 
 
-def _fit_score(distances, inlier_distance) -> float:
-    """Mean truncated-quadratic agreement: 1 on the surface, 0 at or beyond the inlier distance."""
-    return float(np.mean(np.clip(1.0 - (distances / inlier_distance) ** 2, 0.0, None)))
+class _Candidate:
+    """A pose: its input-to-body transform, the distances (m) of some source points, and their scores.
+
+    A pose whose scale strays more than ``_SCALE_TOLERANCE`` from the size
+    estimate ``expected_scale`` is implausible and scores -1: scaled ICP can
+    shrink a cloud that fits nowhere onto one spot of the surface, where
+    every point then lies "on" it.
+    """
+
+    def __init__(self, input_to_body, distances_m, inlier_m, expected_scale):
+        self.input_to_body = input_to_body
+        self.distances = distances_m
+        scale_ratio = np.cbrt(np.linalg.det(input_to_body[:3, :3])) / expected_scale
+        self.plausible = bool(1.0 / _SCALE_TOLERANCE <= scale_ratio <= _SCALE_TOLERANCE)
+        # Mean truncated-quadratic agreement: 1 on the surface, 0 at or beyond the inlier distance.
+        self.score = float(np.mean(np.clip(1.0 - (distances_m / inlier_m) ** 2, 0.0, None))) if self.plausible else -1.0
+        self.fitness, self.inlier_rmse_m = _fit_stats(distances_m, inlier_m)
 
 
 def _fit_stats(distances, inlier_distance) -> tuple[float, float]:
@@ -585,6 +637,11 @@ def register_to_shape(
 
     # Normalised frames: target y' = (y - c_t) / r_t; source x' = f (x_rough - c_s) / r_s.
     size_ratio = target_radius / source_radius if estimate_scale else 1.0
+    # The input-to-body scale the size estimate gives (or the fixed one).
+    if estimate_scale or init_transform is None:
+        expected_scale = rough_scale * size_ratio
+    else:
+        expected_scale = decompose_similarity(init_transform)[0]
     to_target_norm = similarity_transform(1.0 / target_radius, np.eye(3), -target_centre / target_radius)
     from_target_norm = np.linalg.inv(to_target_norm)
     rough_to_input = similarity_transform(1.0 / rough_scale, np.eye(3), rough_centre)
@@ -607,18 +664,20 @@ def register_to_shape(
     norm_surface = SurfaceQuery(norm_vertices, faces)
 
     # --- stage 1: global search over size hypotheses, RANSAC and PCA candidates.
+    # Every candidate is polished and scored on the same random subset of the
+    # source, so that scores compare across size hypotheses.
+    subset_rough = np.asarray(source_fine.points)[
+        np.sort(rng.permutation(len(source_fine.points))[:_CANDIDATE_POINTS])
+    ]
     factors = _RESIZE_FACTORS if (estimate_scale and global_search) else (1.0,)
-    candidates = []  # (score, fitness, rmse_m, transform input->body) per polished start
+    candidates = []
     for factor in factors:
         rough_to_norm = source_norm_from_rough(factor)
         source_norm = _point_cloud(
             transform_points(rough_to_norm, np.asarray(source_fine.points)), np.asarray(source_fine.normals)
         )
         source_coarse = source_norm.voxel_down_sample(voxel)
-        source_coarse_points = np.asarray(source_coarse.points)
-        # Candidates are polished and scored on a subset: enough to rank them.
-        subset = np.sort(rng.permutation(len(source_coarse_points))[:_CANDIDATE_POINTS])
-        source_subset = _point_cloud(source_coarse_points[subset])
+        subset_norm = transform_points(rough_to_norm, subset_rough)
         starts = []
         if global_search:
             source_features = _features(source_coarse, voxel)
@@ -640,6 +699,7 @@ def register_to_shape(
                     reg.RANSACConvergenceCriteria(ransac_max_iteration, 0.999),
                 )
                 starts += [similarity_transform(1.0, flip, np.zeros(3)) @ ransac.transformation for flip in flips]
+            source_coarse_points = np.asarray(source_coarse.points)
             source_axes = _axes_of(source_coarse_points)
             source_mean = source_coarse_points.mean(axis=0)
             pca = similarity_transform(1.0, target_axes @ source_axes.T, -target_axes @ source_axes.T @ source_mean)
@@ -650,47 +710,85 @@ def register_to_shape(
             starts.append(to_target_norm @ np.asarray(init_transform, dtype=np.float64) @ norm_to_input)
         for start_transform in starts:
             transform = _icp(
-                source_subset,
+                _point_cloud(subset_norm),
                 target_coarse,
                 start_transform,
                 [3.0 * voxel, 1.5 * voxel],
                 with_scaling=estimate_scale,
                 max_iteration=20,
             )
-            distances = norm_surface.distance(transform_points(transform, source_coarse_points[subset]))
-            fitness, rmse = _fit_stats(distances, inlier)
+            distances_m = norm_surface.distance(transform_points(transform, subset_norm)) * target_radius
             input_to_body = from_target_norm @ transform @ rough_to_norm @ input_to_rough
-            candidates.append((_fit_score(distances, inlier), fitness, rmse * target_radius, input_to_body))
-        best = max(candidates, key=lambda candidate: candidate[0])
-        logger.debug("size factor %.2f: best score %.3f fitness %.3f", factor, best[0], best[1])
-        if best[1] > success_fitness and best[2] < success_rms_rel * length_m:
+            candidates.append(_Candidate(input_to_body, distances_m, inlier_m, expected_scale))
+        best = max(candidates, key=lambda candidate: candidate.score)
+        logger.debug("size factor %.2f: best score %.3f fitness %.3f", factor, best.score, best.fitness)
+        if best.plausible and best.fitness > success_fitness and best.inlier_rmse_m < success_rms_rel * length_m:
             break
-    ambiguity = _ambiguity(candidates, best)
     seconds_global = time.perf_counter() - start
 
     # --- stage 2: ICP in the body frame: scaled point-to-point, then point-to-plane.
     start = time.perf_counter()
     source_body = _point_cloud(transform_points(rough_to_input, np.asarray(source_fine.points)))
-    transform = _icp(
-        source_body, target_fine, best[3], [2.0 * voxel_m, 1.0 * voxel_m], with_scaling=estimate_scale
-    )
-    transform = _icp(
-        source_body,
-        _point_cloud(target_points, target_normals),
-        transform,
-        [1.0 * voxel_m, 0.5 * voxel_m],
-        with_scaling=False,
-        point_to_plane=True,
-    )
+    target_dense = _point_cloud(target_points, target_normals)
+
+    def refine(input_to_body, source, target_for_planes=target_dense, max_iteration=30) -> np.ndarray:
+        transform = _icp(
+            source,
+            target_fine,
+            input_to_body,
+            [2.0 * voxel_m, 1.0 * voxel_m],
+            with_scaling=estimate_scale,
+            max_iteration=max_iteration,
+        )
+        return _icp(
+            source,
+            target_for_planes,
+            transform,
+            [1.0 * voxel_m, 0.5 * voxel_m],
+            with_scaling=False,
+            point_to_plane=True,
+            max_iteration=max_iteration,
+        )
+
+    def scored(input_to_body, points) -> _Candidate:
+        distances_m = surface.distance(transform_points(input_to_body, points))
+        return _Candidate(input_to_body, distances_m, inlier_m, expected_scale)
+
+    source_body_points = np.asarray(source_body.points)
+    chosen = scored(refine(best.input_to_body, source_body), source_body_points)
+    # Ambiguity: the best other poses of the global search, refined the same
+    # way (their scores from the short ICP on a coarse target are not
+    # converged enough to compare with the chosen pose's), on a subset of the
+    # source to save time. A rival that ICP brings into the chosen pose is no
+    # rival; one that ends up fitting better is chosen instead.
+    rivals = _rivals(candidates, best, _RIVALS_REFINED)
+    ambiguity = 0.0 if rivals else float("nan")
+    if rivals:
+        subset_points = source_body_points[np.sort(rng.permutation(len(source_body_points))[:_RIVAL_POINTS])]
+        subset = _point_cloud(subset_points)
+        chosen_on_subset = scored(chosen.input_to_body, subset_points)
+    for rival in rivals:
+        rival = scored(refine(rival.input_to_body, subset, target_fine, 20), subset_points)
+        same_pose = _rotation_between_deg(rival.input_to_body, chosen.input_to_body) <= _DISTINCT_POSE_DEG
+        if same_pose or not rival.plausible:
+            continue
+        if rival.score > chosen_on_subset.score:
+            ambiguity = _ambiguity(rival, chosen_on_subset, inlier_m)
+            chosen = scored(refine(rival.input_to_body, source_body), source_body_points)
+        else:
+            ambiguity = _ambiguity(chosen_on_subset, rival, inlier_m)
+        break
     seconds_icp = time.perf_counter() - start
 
-    registered = transform_points(transform, np.asarray(source_body.points))
-    fitness, inlier_rmse_m = _fit_stats(surface.distance(registered), inlier_m)
+    transform = chosen.input_to_body
+    fitness, inlier_rmse_m = chosen.fitness, chosen.inlier_rmse_m
     inlier_fraction_all = float(np.mean(surface.distance(transform_points(transform, points_in)) <= inlier_m))
     rms_distance_rel = inlier_rmse_m / length_m
     scale, rotation, translation = decompose_similarity(transform)
     unambiguous = not ambiguity >= success_ambiguity  # NaN (no other pose tried) passes
-    success = bool(rms_distance_rel < success_rms_rel and fitness > success_fitness and unambiguous)
+    success = bool(
+        rms_distance_rel < success_rms_rel and fitness > success_fitness and unambiguous and chosen.plausible
+    )
     logger.info(
         "registration %s: scale %.6g, fitness %.3f, inlier RMS %.3g m (%.3g %% of %.1f m), ambiguity %.3f, "
         "%d candidates, %.2f s global + %.2f s ICP",
@@ -721,7 +819,7 @@ def register_to_shape(
         seconds_global=seconds_global,
         seconds_icp=seconds_icp,
         n_points_input=len(points),
-        n_points_registered=len(registered),
+        n_points_registered=len(source_body.points),
         n_candidates=len(candidates),
         ambiguity=ambiguity,
         success_rms_rel=success_rms_rel,
