@@ -41,6 +41,14 @@ rule tabulate_runtime:
             *expand("benchmarks/add_noise/{set_id}.tsv", set_id=SWEEPS.get("noise", [])),
             *expand("benchmarks/observe/{set_id}.tsv", set_id=SETS),
             *expand("benchmarks/fit/{set_id}/{method}.tsv", set_id=SETS, method=ESTIMATORS),
+            *expand("benchmarks/reconstruct/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
+            *expand("benchmarks/register_cloud/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
+            *expand(
+                "benchmarks/fit_cloud/{set_id}/priors-{priors}/{method}.tsv",
+                set_id=BASE_SETS,
+                priors=PRIOR_SETTINGS,
+                method=ESTIMATORS,
+            ),
         ],
     output:
         csv=report("results/tables/runtime.csv", caption="../report/runtime.rst", category="Tables"),
