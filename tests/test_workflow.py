@@ -43,10 +43,10 @@ def test_dry_run_of_the_full_config(shared_dir, tmp_path):
     # 16 sets of Table 1, the same 16 with a varying surface, and 3 noise levels of the first 16.
     assert jobs["render"] == 32
     assert jobs["add_noise"] == 48
-    assert jobs["fit"] == (16 + 16 + 48) * 2
+    assert jobs["fit"] == (16 + 16 + 48) * 3
     assert jobs["observation_geometry"] == 2
     assert jobs["reconstruct"] == 16 * 2  # with and without priors
-    assert jobs["fit_cloud"] == 16 * 2 * 2
+    assert jobs["fit_cloud"] == 16 * 2 * 3
 
 
 def test_dry_run_without_local_model_plans_the_download(tmp_path):
@@ -86,7 +86,7 @@ def test_small_run_writes_every_output(small_run):
 
 def test_small_run_recovers_the_truth(small_run):
     table = pd.read_csv(small_run / "results/tables/table1.csv")
-    assert len(table) == 4
+    assert len(table) == 2 * 3  # sets x estimators
     assert (table.n_points > 300).all()
     paper_method = table[table.method == "koizumi_lm"]
     # The full image size: the bounds of the full run.
@@ -103,7 +103,7 @@ def test_small_run_recovers_the_truth(small_run):
 
 def test_small_run_sweeps(small_run):
     noisy = pd.read_csv(small_run / "results/tables/noise.csv")
-    assert len(noisy) == 4 and noisy.set_id.str.endswith("_noise-amica12").all()
+    assert len(noisy) == 2 * 3 and noisy.set_id.str.endswith("_noise-amica12").all()
     # Noise costs accuracy, but the fit still finds the surface.
     paper_method = noisy[noisy.method == "koizumi_lm"]
     assert (paper_method.albedo_rmse > 1e-4).all()
@@ -120,7 +120,7 @@ def test_small_run_sweeps(small_run):
 
 def test_small_run_table2_from_images_alone(small_run):
     table = pd.read_csv(small_run / "results/tables/table2.csv")
-    assert len(table) == 2 * 2 * 2  # sets x prior settings x estimators
+    assert len(table) == 2 * 2 * 3  # sets x prior settings x estimators
     assert (small_run / "results/tables/table2.md").stat().st_size > 0
     with_priors = table[table.priors == "on"]
     assert with_priors.registration_ok.all()

@@ -134,7 +134,8 @@ def collect_sweep(summary_paths) -> pd.DataFrame:
 SWEEP_MARKDOWN_COLUMNS = {
     "set_id": ("set", None), "light_dir_err_deg": ("light dir err (deg)", 5), "albedo_err": ("albedo err", 5),
     "albedo_rmse": ("albedo RMSE", 5), "k_err": ("k err", 5), "k_rmse": ("k RMSE", 5), "n_points": ("points", None),
-    "efficiency_albedo": ("eff. albedo", 3), "efficiency_k": ("eff. k", 3), "light_err_sigma": ("light err / sigma", 2),
+    "efficiency_albedo": ("efficiency albedo", 3), "efficiency_k": ("efficiency k", 3),
+    "light_std_deg_bound": ("light std bound (deg)", 4), "light_err_sigma": ("light err / bound std", 2),
 }
 
 

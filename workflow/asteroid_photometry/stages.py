@@ -136,6 +136,7 @@ def write_observations(geometry_npz, render_dir, out_npz) -> None:
         arrays = {name: (value[keep] if isinstance(value, np.ndarray) and value.shape[:1] == keep.shape else value) for name, value in arrays.items()}
         brightness = brightness[keep]
         arrays["variance"] = noise.observation_variance(brightness, sensor)
+        arrays["sensor_json"] = np.str_(json.dumps(sensor.to_dict()))
     else:
         dark = int((brightness <= 0).sum())
         if dark:
@@ -167,27 +168,59 @@ def load_observations(path) -> tuple[estimate.Observations, dict]:
     return obs, arrays
 
 
-def run_estimator(obs: estimate.Observations, method: str, image_set: ImageSet) -> estimate.FitResult:
+def run_estimator(obs: estimate.Observations, method: str, image_set: ImageSet, variance=None) -> estimate.FitResult:
+    """One estimator on one set's observations; ``variance`` (per observation) weights varpro's fit."""
+    if method == "varpro":
+        from .varpro import fit_varpro
+
+        return fit_varpro(obs, sigma=None if variance is None else np.sqrt(variance))
     if method == "koizumi_lm":
         return estimate.fit_koizumi_lm(obs)
     if method == "iwano_linear":
         return estimate.fit_iwano_linear(obs, minnaert_k=image_set.minnaert_k)
-    raise ValueError(f"config key 'estimators': unknown estimator {method!r} (known: koizumi_lm, iwano_linear)")
+    raise ValueError(f"config key 'estimators': unknown estimator {method!r} (known: varpro, koizumi_lm, iwano_linear)")
 
 
 def fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, out_summary, set_id: str) -> None:
     obs, arrays = load_observations(observations_npz)
-    result = run_estimator(obs, method, image_set)
+    result = run_estimator(obs, method, image_set, arrays.get("variance"))
     log.info("%s: %s after %d iterations, %.2f s: %s", method, "converged" if result.success else "NOT converged", result.n_iterations, result.fit_seconds, result.message)
     truth = metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=arrays["albedo_true"], minnaert_k=arrays["minnaert_k_true"])
     row = metrics.summary_row(set_id, result, truth)
     row.update(noise_level=image_set.noise_level, surface_map=image_set.surface_map)
+    if "sensor_json" in arrays and method != "iwano_linear":  # the bound is for per-point albedo and k
+        row.update(cramer_rao_summary(obs, arrays, result))
+    if getattr(result, "light_std_deg", None) is not None and np.isfinite(getattr(result, "light_std_deg", np.nan)):
+        row["light_std_deg_predicted"] = float(result.light_std_deg)
     log.info("summary: %s", json.dumps(row))
     np.savez_compressed(
         out_estimates, light_dir_cam=result.light_dir_cam, albedo=result.albedo, minnaert_k=result.minnaert_k,
         albedo_true=arrays["albedo_true"], minnaert_k_true=arrays["minnaert_k_true"],
     )
     Path(out_summary).write_text(json.dumps(row, indent=1))
+
+
+def cramer_rao_summary(obs: estimate.Observations, arrays: dict, result) -> dict:
+    """How the fit compares with the Cramer-Rao bound of the noisy set's own observation model."""
+    from . import fisher
+
+    sensor = noise.sensor_from_config(json.loads(str(arrays["sensor_json"])))
+    light_true = arrays["light_dir_cam_true"]
+    albedo_true, k_true = arrays["albedo_true"], arrays["minnaert_k_true"]
+    # The variance of each observation at its true brightness (the model's, not the noisy sample's).
+    p = obs.point_index
+    true_brightness = estimate.minnaert_brightness(albedo_true[p], k_true[p], np.maximum(obs.normal_cam @ light_true, 1e-9), obs.cos_emission)
+    variance = noise.observation_variance(true_brightness, sensor)
+    bounds = fisher.cramer_rao_bounds(obs, light_true, albedo_true, k_true, variance)
+    scores = fisher.efficiency(result, {"light_dir_cam": light_true, "albedo": albedo_true, "minnaert_k": k_true}, bounds)
+    return {
+        "efficiency_albedo": scores["albedo_efficiency"],
+        "efficiency_k": scores["k_efficiency"],
+        "light_std_deg_bound": scores["light_std_deg"],
+        "light_err_sigma": scores["light_error_sigma"],
+        "albedo_std_bound_median": float(np.sqrt(np.nanmedian(bounds["albedo_var"]))),
+        "k_std_bound_median": float(np.sqrt(np.nanmedian(bounds["k_var"]))),
+    }
 
 
 def write_table1(summary_paths, paper_csv, out_csv, out_markdown) -> None:

@@ -86,6 +86,11 @@ def _truth_for_points(points_body, shape: dict, render_dir):
 
 
 def _run(method: str, obs, minnaert_k_known: float):
+    if method == "varpro":
+        from .varpro import fit_varpro
+
+        # A reconstructed cloud has outlying observations (mislocated samples): a robust loss.
+        return fit_varpro(obs, loss="cauchy", reject_outliers=True)
     if method == "koizumi_lm":
         return estimate.fit_koizumi_lm(obs)
     if method == "iwano_linear":
