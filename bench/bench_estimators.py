@@ -268,6 +268,27 @@ class PeakMemory:
         return False
 
 
+def fresh_large_allocations(threshold_bytes=1 << 20):
+    """Make glibc map every allocation of ``threshold_bytes`` or more afresh and unmap it when freed.
+
+    By default glibc raises its mmap threshold (up to 32 MiB) after large
+    frees and keeps freed memory in its heap, so a fit can reuse memory an
+    earlier fit freed and its peak reads too low. A fixed threshold (which
+    also stops the adjustment) and trim threshold make the peak resident
+    size count every large array. Chunk temporaries (512 KiB) stay below
+    it. Returns False where there is no glibc.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3
+        return bool(libc.mallopt(m_mmap_threshold, int(threshold_bytes)) and libc.mallopt(m_trim_threshold, int(threshold_bytes)))
+    except (OSError, AttributeError):
+        return False
+
+
 def timed(function, repeats):
     """(best seconds, peak bytes added, result of the last run)."""
     best, added, result = np.inf, 0, None
@@ -543,6 +564,7 @@ def main(argv=None):
     parser.add_argument("--out", type=Path, default=REPO / "results" / "bench", help="output directory (default results/bench/)")
     args = parser.parse_args(argv)
     defaults = QUICK if args.quick else FULL
+    fresh_large_allocations()  # process-wide, so only here and not in run_benchmark (which tests call)
     run_benchmark(
         args.sizes or defaults["sizes"],
         n_views=args.views,
