@@ -206,7 +206,7 @@ def test_defaults_are_filled_in_the_returned_and_the_given_config():
     assert filled["image_size"] == 512
     assert filled["shape_model"] == "gaskell_ver64q"
     assert filled["shape_model_path"] is None
-    assert filled["estimators"] == ["koizumi_lm", "iwano_linear"]
+    assert filled["estimators"] == ["varpro", "koizumi_lm", "iwano_linear"]
     assert filled["mitsuba_variant"] == "auto"
     assert filled["observations"] == {
         "min_cos_incidence": 0.1,
@@ -223,7 +223,7 @@ def test_filled_defaults_do_not_alias_the_schema():
     first["estimators"].append("x")
     second = validate_config({"albedos": [0.5], "minnaert_k": [0.9], "light_angles_deg": [0]})
     assert second["observations"]["min_cos_incidence"] == 0.1
-    assert second["estimators"] == ["koizumi_lm", "iwano_linear"]
+    assert second["estimators"] == ["varpro", "koizumi_lm", "iwano_linear"]
 
 
 def test_invalid_config_is_left_unchanged(test_config):

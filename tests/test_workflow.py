@@ -108,6 +108,11 @@ def test_small_run_sweeps(small_run):
     paper_method = noisy[noisy.method == "koizumi_lm"]
     assert (paper_method.albedo_rmse > 1e-4).all()
     assert (paper_method.albedo_err.abs() < 5e-3).all() and (paper_method.k_err.abs() < 5e-3).all()
+    # The maximum-likelihood fit reaches the Cramér-Rao bound of the noise model.
+    for method in ("varpro", "koizumi_lm"):
+        rows = noisy[noisy.method == method]
+        assert (rows.efficiency_albedo >= 0.8).all() and (rows.efficiency_k >= 0.8).all(), rows
+        assert (rows.light_err_sigma <= 3.0).all(), rows
     frames = json.loads((small_run / "results/render/light0_albedo0.6_k0.8_noise-amica12/frames.json").read_text())
     assert frames["sensor"]["bit_depth"] == 12
     mapped = pd.read_csv(small_run / "results/tables/surface_maps.csv")
