@@ -17,16 +17,9 @@ from asteroid_photometry.estimate import (
     tangent_from_light,
 )
 from asteroid_photometry.varpro import VarproResult, fit_varpro
+from synthetic_helpers import light_at, per_point_truth
 
 
-def light_at(angle_deg, azimuth_deg=30.0):
-    theta, phi = np.radians(angle_deg), np.radians(azimuth_deg)
-    return np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)])
-
-
-def per_point_truth(n_points, seed):
-    rng = np.random.default_rng(seed)
-    return rng.uniform(0.3, 0.8, n_points), rng.uniform(0.6, 1.0, n_points)
 
 
 def shuffled(obs, seed):
