@@ -31,14 +31,46 @@ log = logging.getLogger(__name__)
 PAPER_TABLE2 = {"light_deg_est": 4.21, "light_deg_true": 0.0, "albedo_est": 0.578, "albedo_true": 0.53, "k_est": 0.771, "k_true": 0.7}
 
 
+MAX_MAPPER_SEEDS = 4
+
+
+def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3) -> float:
+    """Fraction of the cloud's camera-facing normals that point away from its centroid.
+
+    About 1 for a sound model of a (nearly) star-shaped body; near 0 for the
+    depth-reversed twin that narrow-field structure from motion of a turning
+    body can land in (the cameras then come out turned by 180 degrees and the
+    surface is seen from inside).
+    """
+    _, xyz = recon.points3d()
+    tracks = recon.tracks()
+    oriented = cloud_lib.oriented_cloud(xyz, tracks["point"], tracks["image"], recon.camera_centres(), min_track=min_track)
+    outward = np.einsum("ij,ij->i", oriented.normals, oriented.points - oriented.points.mean(axis=0)) > 0
+    return float(outward.mean())
+
+
 def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
-    """Sparse reconstruction of one set, with or without navigation position priors."""
-    result = reconstruct.reconstruct_set(
-        render_dir, Path(out_dir) / "work",
-        intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
-        camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
-        prior_seed=settings["prior_seed"], num_threads=threads,
-    )
+    """Sparse reconstruction of one set, with or without navigation position priors.
+
+    A model whose surface faces inwards (``outward_fraction`` below 0.5) is
+    the depth-reversed twin, not the body: the mapper is run again with the
+    next seed, up to ``MAX_MAPPER_SEEDS`` times, and the attempts are logged
+    and recorded in the report's settings.
+    """
+    attempts = []
+    for seed in range(MAX_MAPPER_SEEDS):
+        result = reconstruct.reconstruct_set(
+            render_dir, Path(out_dir) / "work",
+            intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
+            camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
+            prior_seed=settings["prior_seed"], num_threads=threads, seed=seed,
+        )
+        fraction = outward_fraction(result, settings["min_track"])
+        attempts.append({"seed": seed, "outward_fraction": fraction, "n_images_registered": result.report.n_images_registered})
+        if fraction >= 0.5:
+            break
+        log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
+    result.report.settings["mapper_attempts"] = attempts
     result.write(out_dir)
     log.info("reconstruction: %s", json.dumps(result.report.to_dict()))
 
