@@ -22,5 +22,6 @@ rule all:
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
         expand("results/tables/{sweep}.csv", sweep=SWEEPS),
+        expand("results/plots/noise_against_bound.png", _=[1] if "noise" in SWEEPS else []),
         expand("results/tables/table2.csv", _=[1] if PRIOR_SETTINGS else []),
         expand("results/plots/error_map_{map_name}.png", map_name=[m["name"] for m in config["surface_maps"]]),

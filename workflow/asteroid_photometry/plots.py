@@ -101,3 +101,36 @@ def plot_error_maps_on_body(centroids_m: np.ndarray, estimates: dict, title: str
     fig.tight_layout()
     fig.savefig(out_path, dpi=110)
     plt.close(fig)
+
+
+def plot_errors_against_bound(noise_table: pd.DataFrame, out_path) -> None:
+    """Observed errors of the noisy sets against their Cramer-Rao bounds, one point per set and level.
+
+    Per-point albedo and k: the observed RMSE over points against the RMS of
+    the bound's standard deviations over the same points (what an efficient
+    estimator's RMSE would be); light: the angular error against the bound's RMS angle.
+    """
+    rows = noise_table.dropna(subset=["light_std_deg_bound"])
+    panels = [
+        ("albedo_std_bound_rms", "albedo_rmse", "albedo: bound std (RMS over points)", "observed per-point RMSE"),
+        ("k_std_bound_rms", "k_rmse", "k: bound std (RMS over points)", "observed per-point RMSE"),
+        ("light_std_deg_bound", "light_dir_err_deg", "light: bound RMS angle (deg)", "observed error (deg)"),
+    ]
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.5))
+    markers = dict(zip(sorted(rows["method"].unique()), "os^D"))
+    for ax, (x_key, y_key, x_label, y_label) in zip(axes, panels):
+        for (method, level), group in rows.groupby(["method", "noise_level"]):
+            ax.loglog(group[x_key], group[y_key].clip(lower=1e-9), marker=markers[method], linestyle="none", alpha=0.7, label=f"{method}, {level}")
+        low = min(rows[x_key].min(), rows[y_key].clip(lower=1e-9).min())
+        high = max(rows[x_key].max(), rows[y_key].max())
+        ax.loglog([low, high], [low, high], "k-", linewidth=0.8, label="= bound")
+        if y_key == "light_dir_err_deg":
+            ax.loglog([low, high], [2 * low, 2 * high], "k--", linewidth=0.8, label="2 x bound")
+        ax.set_xlabel(x_label)
+        ax.set_ylabel(y_label)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=6)
+    fig.suptitle("Noise sweep: observed errors against the Cramér-Rao bound")
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)

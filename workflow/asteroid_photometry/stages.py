@@ -193,9 +193,13 @@ def fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, o
     if getattr(result, "light_std_deg", None) is not None and np.isfinite(getattr(result, "light_std_deg", np.nan)):
         row["light_std_deg_predicted"] = float(result.light_std_deg)
     log.info("summary: %s", json.dumps(row))
+    uncertainty = {
+        name: value for name in ("albedo_std", "minnaert_k_std", "albedo_k_cov", "light_cov_tangent")
+        if (value := getattr(result, name, None)) is not None
+    }
     np.savez_compressed(
         out_estimates, light_dir_cam=result.light_dir_cam, albedo=result.albedo, minnaert_k=result.minnaert_k,
-        albedo_true=arrays["albedo_true"], minnaert_k_true=arrays["minnaert_k_true"],
+        albedo_true=arrays["albedo_true"], minnaert_k_true=arrays["minnaert_k_true"], **uncertainty,
     )
     Path(out_summary).write_text(json.dumps(row, indent=1))
 
@@ -220,6 +224,9 @@ def cramer_rao_summary(obs: estimate.Observations, arrays: dict, result) -> dict
         "light_err_sigma": scores["light_error_sigma"],
         "albedo_std_bound_median": float(np.sqrt(np.nanmedian(bounds["albedo_var"]))),
         "k_std_bound_median": float(np.sqrt(np.nanmedian(bounds["k_var"]))),
+        # What an efficient estimator's per-point RMSE would be: sqrt(mean bound variance) over the fitted points.
+        "albedo_std_bound_rms": float(np.sqrt(np.nanmean(np.where(np.isfinite(result.albedo), bounds["albedo_var"], np.nan)))),
+        "k_std_bound_rms": float(np.sqrt(np.nanmean(np.where(np.isfinite(result.minnaert_k), bounds["k_var"], np.nan)))),
     }
 
 
@@ -257,6 +264,12 @@ def write_sweep_table(summary_paths, sweep: str, out_csv, out_markdown) -> None:
     table.to_csv(out_csv, index=False)
     Path(out_markdown).write_text(metrics.sweep_markdown(table, sweep))
     log.info("%s sweep: %d rows", sweep, len(table))
+
+
+def write_noise_plot(noise_csv, out_png) -> None:
+    from . import plots
+
+    plots.plot_errors_against_bound(pd.read_csv(noise_csv), out_png)
 
 
 def write_error_map_plot(shape_npz, estimates_npz, title, out_png) -> None:

@@ -92,3 +92,16 @@ rule plot_error_map:
         "../../envs/photometry.yaml"
     script:
         "../scripts/plot_error_map.py"
+
+
+rule plot_noise:
+    input:
+        table="results/tables/noise.csv",
+    output:
+        png=report("results/plots/noise_against_bound.png", caption="../report/noise_plot.rst", category="Plots"),
+    log:
+        "logs/plot_noise.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/plot_noise.py"
