@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -72,7 +73,8 @@ def small_run(shared_dir, tmp_path_factory):
 def test_small_run_writes_every_output(small_run):
     for name in ["results/tables/table1.csv", "results/tables/table1.md", "results/tables/runtime.csv",
                  "results/plots/light_angle.png", "results/plots/albedo.png", "results/plots/minnaert_k.png",
-                 "results/plots/per_point_errors.png"]:
+                 "results/plots/per_point_errors.png", "results/plots/noise_against_bound.png",
+                 "results/plots/error_map_field.png"]:
         assert (small_run / name).stat().st_size > 0, name
     frames = json.loads((small_run / "results/render/light10_albedo0.6_k0.8/frames.json").read_text())
     assert len(frames["images"]) == 36
@@ -113,6 +115,11 @@ def test_small_run_sweeps(small_run):
         rows = noisy[noisy.method == method]
         assert (rows.efficiency_albedo >= 0.8).all() and (rows.efficiency_k >= 0.8).all(), rows
         assert (rows.light_err_sigma <= 3.0).all(), rows
+    # Per-point uncertainties come with varpro's estimates and match the observed scatter.
+    with np.load(small_run / "results/fits/light10_albedo0.6_k0.8_noise-amica12/varpro.npz") as estimates:
+        fitted = np.isfinite(estimates["albedo"])
+        z = (estimates["albedo"] - estimates["albedo_true"])[fitted] / estimates["albedo_std"][fitted]
+    assert 0.8 < np.sqrt(np.mean(z**2)) < 1.25
     frames = json.loads((small_run / "results/render/light0_albedo0.6_k0.8_noise-amica12/frames.json").read_text())
     assert frames["sensor"]["bit_depth"] == 12
     mapped = pd.read_csv(small_run / "results/tables/surface_maps.csv")
