@@ -700,6 +700,29 @@ def _solve_block_lm(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev, ver
 # U = (u_11, u_12, u_22), W = (w_a1, w_a2, w_b1, w_b2).
 
 
+def _schur_complement(light_block, point_blocks, couplings):
+    """The pieces both arrow-system functions need (call inside ``np.errstate``).
+
+    Returns each point's ``U_p^-1`` as ``(i11, i12, i22)``, ``Y_p = W_p U_p^-1``
+    as ``(y_a1, y_a2, y_b1, y_b2)`` (rows: the light's a, b; columns: the
+    point's two parameters) and the Schur complement ``S = V - sum_p Y_p
+    W_p^T`` as ``(s_aa, s_ab, s_bb)``.
+    """
+    v_aa, v_ab, v_bb = light_block
+    u_11, u_12, u_22 = point_blocks
+    w_a1, w_a2, w_b1, w_b2 = couplings
+    det = u_11 * u_22 - u_12 * u_12
+    i11, i22, i12 = u_22 / det, u_11 / det, -u_12 / det
+    y_a1 = w_a1 * i11 + w_a2 * i12
+    y_a2 = w_a1 * i12 + w_a2 * i22
+    y_b1 = w_b1 * i11 + w_b2 * i12
+    y_b2 = w_b1 * i12 + w_b2 * i22
+    s_aa = v_aa - float(np.sum(y_a1 * w_a1 + y_a2 * w_a2))
+    s_ab = v_ab - float(np.sum(y_a1 * w_b1 + y_a2 * w_b2))
+    s_bb = v_bb - float(np.sum(y_b1 * w_b1 + y_b2 * w_b2))
+    return (i11, i12, i22), (y_a1, y_a2, y_b1, y_b2), (s_aa, s_ab, s_bb)
+
+
 def solve_arrow_system(light_block, point_blocks, couplings, light_gradient, point_gradient):
     """Solve ``[[V, W], [W^T, U]] [d_light; d_point] = -[g_light; g_point]`` by the Schur complement.
 
@@ -712,23 +735,12 @@ def solve_arrow_system(light_block, point_blocks, couplings, light_gradient, poi
     ``U_p d_p = -g_p - W_p^T d_light``. O(m); returns ``(step_light (2,),
     step_1 (m,), step_2 (m,))``, non-finite where a block is singular.
     """
-    v_aa, v_ab, v_bb = light_block
-    u_11, u_12, u_22 = point_blocks
     w_a1, w_a2, w_b1, w_b2 = couplings
     g_a, g_b = light_gradient
     g_1, g_2 = point_gradient
     with np.errstate(divide="ignore", invalid="ignore"):
-        det = u_11 * u_22 - u_12 * u_12
-        i11, i22, i12 = u_22 / det, u_11 / det, -u_12 / det
-        # Y_p = W_p U_p^-1 (rows: a, b; columns: the point's two parameters).
-        y_a1 = w_a1 * i11 + w_a2 * i12
-        y_a2 = w_a1 * i12 + w_a2 * i22
-        y_b1 = w_b1 * i11 + w_b2 * i12
-        y_b2 = w_b1 * i12 + w_b2 * i22
-        # Schur complement S = V - sum_p Y_p W_p^T and its right-hand side.
-        s_aa = v_aa - float(np.sum(y_a1 * w_a1 + y_a2 * w_a2))
-        s_ab = v_ab - float(np.sum(y_a1 * w_b1 + y_a2 * w_b2))
-        s_bb = v_bb - float(np.sum(y_b1 * w_b1 + y_b2 * w_b2))
+        (i11, i12, i22), (y_a1, y_a2, y_b1, y_b2), (s_aa, s_ab, s_bb) = _schur_complement(light_block, point_blocks, couplings)
+        # The Schur complement's right-hand side.
         rhs_a = -g_a + float(np.sum(y_a1 * g_1 + y_a2 * g_2))
         rhs_b = -g_b + float(np.sum(y_b1 * g_1 + y_b2 * g_2))
         s_det = s_aa * s_bb - s_ab * s_ab
@@ -753,19 +765,8 @@ def arrow_covariance(light_block, point_blocks, couplings):
 
     Returns ``(light_cov (2, 2), var_1 (m,), var_2 (m,), cov_12 (m,))``.
     """
-    v_aa, v_ab, v_bb = light_block
-    u_11, u_12, u_22 = point_blocks
-    w_a1, w_a2, w_b1, w_b2 = couplings
     with np.errstate(divide="ignore", invalid="ignore"):
-        det = u_11 * u_22 - u_12 * u_12
-        i11, i22, i12 = u_22 / det, u_11 / det, -u_12 / det
-        y_a1 = w_a1 * i11 + w_a2 * i12
-        y_a2 = w_a1 * i12 + w_a2 * i22
-        y_b1 = w_b1 * i11 + w_b2 * i12
-        y_b2 = w_b1 * i12 + w_b2 * i22
-        s_aa = v_aa - float(np.sum(y_a1 * w_a1 + y_a2 * w_a2))
-        s_ab = v_ab - float(np.sum(y_a1 * w_b1 + y_a2 * w_b2))
-        s_bb = v_bb - float(np.sum(y_b1 * w_b1 + y_b2 * w_b2))
+        (i11, i12, i22), (y_a1, y_a2, y_b1, y_b2), (s_aa, s_ab, s_bb) = _schur_complement(light_block, point_blocks, couplings)
         light_cov = np.linalg.inv(np.array([[s_aa, s_ab], [s_ab, s_bb]]))
         c_aa, c_ab, c_bb = light_cov[0, 0], light_cov[0, 1], light_cov[1, 1]
         var_1 = i11 + c_aa * y_a1 * y_a1 + 2.0 * c_ab * y_a1 * y_b1 + c_bb * y_b1 * y_b1
