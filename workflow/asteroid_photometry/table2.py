@@ -64,6 +64,9 @@ def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, thr
             intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
             camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
             prior_seed=settings["prior_seed"], num_threads=threads, seed=seed,
+            features=reconstruct.FeatureOptions(
+                min_pose_inliers=settings["min_pose_inliers"], min_pose_inlier_ratio=settings["min_pose_inlier_ratio"],
+            ),
         )
         fraction = outward_fraction(result, settings["min_track"])
         attempts.append({"seed": seed, "outward_fraction": fraction, "n_images_registered": result.report.n_images_registered})
