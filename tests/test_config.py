@@ -46,7 +46,7 @@ def _walk_object_schemas(schema, path="<top level>"):
 def test_schema_forbids_unknown_keys_and_describes_every_key():
     schema = load_schema()
     objects = list(_walk_object_schemas(schema))
-    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "surface_maps[]", "reconstruction"]
+    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "reconstruction"]
     for path, object_schema in objects:
         assert object_schema.get("additionalProperties") is False, path
         for key, subschema in object_schema["properties"].items():
@@ -268,3 +268,17 @@ def test_whole_floats_become_ints_where_an_integer_is_asked(test_config):
 def test_strings_stay_strings_where_a_string_is_allowed(test_config):
     test_config["shape_model_path"] = "12"
     assert validate_config(test_config)["shape_model_path"] == "12"
+
+
+def test_monte_carlo_level_must_name_a_noise_level(test_config):
+    test_config["noise_monte_carlo"] = {"level": "amica-12", "realisations": 4}
+    message = _error(test_config)
+    assert "config key 'noise_monte_carlo.level': 'amica-12'" in message and "amica12" in message
+
+
+def test_monte_carlo_off_needs_no_noise_level(test_config):
+    test_config["noise_levels"] = []
+    test_config["noise_monte_carlo"] = {"level": "amica12", "realisations": 0}
+    assert validate_config(test_config)["noise_monte_carlo"]["realisations"] == 0
+    del test_config["noise_monte_carlo"]
+    assert validate_config(test_config)["noise_monte_carlo"] == {"level": "amica12", "realisations": 0}

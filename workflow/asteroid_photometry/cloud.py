@@ -66,12 +66,18 @@ def oriented_cloud(points, track_point, track_image, camera_centres: dict, min_t
 
 
 def poisson_surface(cloud: OrientedCloud, depth: int = 7):
-    """A closed surface through the cloud, for occlusion tests: (vertices, triangles)."""
+    """A closed surface through the cloud, for occlusion tests: (vertices, triangles).
+
+    Single-threaded: open3d's multi-threaded Poisson segfaults at random
+    (isl-org/Open3D#6828; it killed one of 100 jobs of a full run here) and
+    gives a slightly different mesh from call to call; one thread is fast
+    enough for a few thousand points and makes the mesh reproducible.
+    """
     import open3d as o3d
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
     pcd.normals = o3d.utility.Vector3dVector(cloud.normals)
-    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=depth)
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=depth, n_threads=1)
     return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
 
 

@@ -162,6 +162,19 @@ def validate_config(config):
         if len(problems) == 1:
             raise ConfigError(problems[0])
         raise ConfigError(f"{len(problems)} config problems:\n" + "\n".join(f"  - {line}" for line in problems))
+    _check_cross_references(candidate)
     if isinstance(config, dict):
         config.update(candidate)
     return candidate
+
+
+def _check_cross_references(config):
+    """What a JSON Schema cannot say: a key that names an entry of another key."""
+    study = config.get("noise_monte_carlo", {})
+    if study.get("realisations", 0) > 0:
+        names = [level.get("name") for level in config.get("noise_levels", [])]
+        if study["level"] not in names:
+            raise ConfigError(
+                f"config key 'noise_monte_carlo.level': {study['level']!r} is not the name of a 'noise_levels' entry "
+                f"(names: {names or 'none, the list is empty'}); name one, or set noise_monte_carlo.realisations to 0"
+            )

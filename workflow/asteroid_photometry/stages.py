@@ -120,16 +120,18 @@ def read_rendered_images(render_dir) -> tuple[dict, list[np.ndarray]]:
     return frames, images
 
 
-def write_observations(geometry_npz, render_dir, out_npz) -> None:
-    """The brightness of every observation, sampled from the rendered images, with its geometry."""
-    obs_geometry = observe.ObservationGeometry.load(geometry_npz)
-    frames, images = read_rendered_images(render_dir)
+def observation_arrays(obs_geometry: observe.ObservationGeometry, frames: dict, images: list[np.ndarray], render_dir) -> dict:
+    """Every observation's brightness sampled from ``images``, with its geometry and the truth, as arrays.
+
+    ``frames`` is the set's ``frames.json``; with a ``sensor`` entry (a noisy
+    set) saturated and zero samples are dropped and each observation gets its
+    variance, as a real pipeline that knows its sensor would do.
+    """
     if max(obs_geometry.image_index, default=-1) >= len(images):
-        raise ValueError(f"{geometry_npz} refers to image {obs_geometry.image_index.max()} but {render_dir} has {len(images)} images")
+        raise ValueError(f"the observation geometry refers to image {obs_geometry.image_index.max()} but {render_dir} has {len(images)} images")
     brightness = observe.sample_brightness(obs_geometry, images)
     arrays = {name: getattr(obs_geometry, name) for name in obs_geometry.__dataclass_fields__}
     if "sensor" in frames:
-        # A real pipeline knows its sensor: the per-observation variance, and saturated pixels to drop.
         sensor = noise.sensor_from_config(frames["sensor"])
         keep = ~noise.saturated(brightness, sensor) & (brightness > 0)
         log.info("dropping %d saturated or zero observations of %d", int((~keep).sum()), len(keep))
@@ -148,24 +150,26 @@ def write_observations(geometry_npz, render_dir, out_npz) -> None:
         albedo_true = np.full(obs_geometry.n_points, float(frames["albedo"]))
         k_true = np.full(obs_geometry.n_points, float(frames["minnaert_k"]))
     log.info("%d observations of %d points from %d images", len(brightness), len(np.unique(arrays["point_index"])), len(images))
-    np.savez_compressed(
-        out_npz,
-        brightness=brightness,
-        light_dir_cam_true=np.asarray(frames["light_dir_cam"]),
-        albedo_true=albedo_true,
-        minnaert_k_true=k_true,
-        **arrays,
-    )
+    return dict(arrays, brightness=brightness, light_dir_cam_true=np.asarray(frames["light_dir_cam"]), albedo_true=albedo_true, minnaert_k_true=k_true)
+
+
+def write_observations(geometry_npz, render_dir, out_npz) -> None:
+    """The brightness of every observation, sampled from the rendered images, with its geometry."""
+    frames, images = read_rendered_images(render_dir)
+    np.savez_compressed(out_npz, **observation_arrays(observe.ObservationGeometry.load(geometry_npz), frames, images, render_dir))
 
 
 def load_observations(path) -> tuple[estimate.Observations, dict]:
     with np.load(path) as data:
         arrays = {name: data[name] for name in data.files}
-    obs = estimate.Observations(
+    return observations_from_arrays(arrays), arrays
+
+
+def observations_from_arrays(arrays: dict) -> estimate.Observations:
+    return estimate.Observations(
         point_index=arrays["point_index"], normal_cam=arrays["normal_cam"], view_cam=arrays["view_cam"],
         brightness=arrays["brightness"], n_points=int(arrays["n_points"]),
     )
-    return obs, arrays
 
 
 def run_estimator(obs: estimate.Observations, method: str, image_set: ImageSet, variance=None) -> estimate.FitResult:
@@ -222,6 +226,7 @@ def cramer_rao_summary(obs: estimate.Observations, arrays: dict, result) -> dict
         "efficiency_k": scores["k_efficiency"],
         "light_std_deg_bound": scores["light_std_deg"],
         "light_err_sigma": scores["light_error_sigma"],
+        "light_mahalanobis": scores["light_mahalanobis"],
         "albedo_std_bound_median": float(np.sqrt(np.nanmedian(bounds["albedo_var"]))),
         "k_std_bound_median": float(np.sqrt(np.nanmedian(bounds["k_var"]))),
         # What an efficient estimator's per-point RMSE would be: sqrt(mean bound variance) over the fitted points.
@@ -279,3 +284,36 @@ def write_error_map_plot(shape_npz, estimates_npz, title, out_png) -> None:
     with np.load(estimates_npz) as data:
         estimates = {name: data[name] for name in data.files}
     plots.plot_error_maps_on_body(shape["centroids_m"], estimates, title, out_png)
+
+
+def noise_monte_carlo_set(geometry_npz, clean_dir, sensor_entry: dict, base_seed: int, realisations: int, image_set: ImageSet, set_id: str, out_csv) -> None:
+    """The noise of ``sensor_entry`` drawn ``realisations`` times on one clean set, each draw fitted by varpro.
+
+    Draw ``r`` (1, 2, ...) uses the generator seeded with ``(base_seed, r)``:
+    independent of each other and of the noisy set the sweep made from
+    ``base_seed`` alone. One row per draw: the Table 1 columns and the
+    Cramer-Rao comparison of :func:`cramer_rao_summary`.
+    """
+    obs_geometry = observe.ObservationGeometry.load(geometry_npz)
+    frames, clean = read_rendered_images(clean_dir)
+    sensor = noise.sensor_from_config(sensor_entry)
+    frames = dict(frames, sensor=sensor.to_dict())
+    rows = []
+    for draw in range(1, realisations + 1):
+        rng = np.random.default_rng([int(base_seed), draw])
+        arrays = observation_arrays(obs_geometry, frames, [noise.apply_sensor_noise(image, sensor, rng) for image in clean], clean_dir)
+        obs = observations_from_arrays(arrays)
+        result = run_estimator(obs, "varpro", image_set, arrays["variance"])
+        truth = metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=arrays["albedo_true"], minnaert_k=arrays["minnaert_k_true"])
+        row = metrics.summary_row(set_id, result, truth)
+        row.update(noise_level=sensor.name, draw=draw, **cramer_rao_summary(obs, arrays, result))
+        log.info("draw %d: light %.3f deg (%.2f sigma), efficiency albedo %.2f, k %.2f", draw, row["light_dir_err_deg"], row["light_err_sigma"], row["efficiency_albedo"], row["efficiency_k"])
+        rows.append(row)
+    pd.DataFrame(rows).to_csv(out_csv, index=False)
+
+
+def write_monte_carlo_table(draw_csvs, out_csv, out_markdown) -> None:
+    table = metrics.monte_carlo_summary(pd.concat([pd.read_csv(path) for path in draw_csvs], ignore_index=True))
+    table.to_csv(out_csv, index=False)
+    Path(out_markdown).write_text(metrics.monte_carlo_markdown(table))
+    log.info("noise Monte Carlo: %d sets", len(table) - 1)

@@ -23,6 +23,7 @@ SWEEPS = {
 }
 SWEEPS = {sweep: ids for sweep, ids in SWEEPS.items() if ids}
 PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["priors"]] if config["reconstruction"]["enabled"] else []
+MONTE_CARLO_SETS = BASE_SETS if config["noise_monte_carlo"]["realisations"] > 0 else []
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
 ESTIMATORS = config["estimators"]
 NAME = "[A-Za-z0-9-]+"
@@ -51,9 +52,18 @@ def noise_level_spec(wildcards):
     return named_entry(config, "noise_levels", wildcards.level)
 
 
-def noise_seed(wildcards):
+def seed_of_noisy_set(clean_id, level):
     """Each noisy set draws from its own seed, derived from noise_seed and the set."""
-    return (config["noise_seed"] * 1_000_003 + SETS[f"{wildcards.clean_id}_noise-{wildcards.level}"].seed) % 2**32
+    return (config["noise_seed"] * 1_000_003 + SETS[f"{clean_id}_noise-{level}"].seed) % 2**32
+
+
+def noise_seed(wildcards):
+    return seed_of_noisy_set(wildcards.clean_id, wildcards.level)
+
+
+def monte_carlo_seed(wildcards):
+    """The noise Monte Carlo's seed for a base set: the seed its noisy variant of that level draws from."""
+    return seed_of_noisy_set(wildcards.set_id, config["noise_monte_carlo"]["level"])
 
 
 def shape_model_file(wildcards):

@@ -18,3 +18,25 @@ rule fit:
         "../../envs/photometry.yaml"
     script:
         "../scripts/fit.py"
+
+
+rule noise_monte_carlo:
+    input:
+        geometry=lambda wildcards: f"results/observations/geometry_{SETS[wildcards.set_id].light_tag}.npz",
+        images="results/render/{set_id}",
+    output:
+        csv="results/noise_monte_carlo/{set_id}.csv",
+    params:
+        image_set=image_set,
+        sensor=lambda wildcards: named_entry(config, "noise_levels", config["noise_monte_carlo"]["level"]),
+        seed=monte_carlo_seed,
+        realisations=config["noise_monte_carlo"]["realisations"],
+    threads: 1
+    log:
+        "logs/noise_monte_carlo/{set_id}.log",
+    benchmark:
+        "benchmarks/noise_monte_carlo/{set_id}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/noise_monte_carlo.py"

@@ -41,6 +41,7 @@ rule tabulate_runtime:
             *expand("benchmarks/add_noise/{set_id}.tsv", set_id=SWEEPS.get("noise", [])),
             *expand("benchmarks/observe/{set_id}.tsv", set_id=SETS),
             *expand("benchmarks/fit/{set_id}/{method}.tsv", set_id=SETS, method=ESTIMATORS),
+            *expand("benchmarks/noise_monte_carlo/{set_id}.tsv", set_id=MONTE_CARLO_SETS),
             *expand("benchmarks/reconstruct/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand("benchmarks/register_cloud/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(
@@ -105,3 +106,17 @@ rule plot_noise:
         "../../envs/photometry.yaml"
     script:
         "../scripts/plot_noise.py"
+
+
+rule tabulate_noise_monte_carlo:
+    input:
+        draws=expand("results/noise_monte_carlo/{set_id}.csv", set_id=MONTE_CARLO_SETS),
+    output:
+        csv=report("results/tables/noise_monte_carlo.csv", caption="../report/noise_monte_carlo.rst", category="Tables"),
+        markdown="results/tables/noise_monte_carlo.md",
+    log:
+        "logs/tabulate_noise_monte_carlo.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/tabulate_noise_monte_carlo.py"
