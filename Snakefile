@@ -24,5 +24,6 @@ rule all:
         expand("results/tables/{sweep}.csv", sweep=SWEEPS),
         expand("results/plots/noise_against_bound.png", _=[1] if "noise" in SWEEPS else []),
         expand("results/tables/table2.csv", _=[1] if PRIOR_SETTINGS else []),
+        expand("results/plots/table2_errors.png", _=[1] if PRIOR_SETTINGS else []),
         expand("results/tables/noise_monte_carlo.csv", _=[1] if MONTE_CARLO_SETS else []),
         expand("results/plots/error_map_{map_name}.png", map_name=[m["name"] for m in config["surface_maps"]]),

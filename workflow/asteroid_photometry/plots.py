@@ -73,31 +73,83 @@ def plot_per_point_errors(estimates: dict[str, dict], out_path, method: str = "k
 def plot_error_maps_on_body(centroids_m: np.ndarray, estimates: dict, title: str, out_path) -> None:
     """Per-point albedo and k errors coloured on the body, seen from +z (pole) and from -y (side)."""
     fitted = np.isfinite(estimates["albedo"]) & np.isfinite(estimates["minnaert_k"])
-    points = centroids_m[fitted]
-    errors = {
+    values = {
         "albedo error": (estimates["albedo"] - estimates["albedo_true"])[fitted],
         "k error": (estimates["minnaert_k"] - estimates["minnaert_k_true"])[fitted],
         "true albedo": estimates["albedo_true"][fitted],
     }
-    fig, axes = plt.subplots(len(errors), 2, figsize=(11, 3.2 * len(errors)))
-    for row, (name, values) in enumerate(errors.items()):
+    plot_values_on_body(centroids_m[fitted], values, title, out_path)
+
+
+def _scale_limit(values) -> float:
+    values = np.abs(np.concatenate([np.ravel(v) for v in values]))
+    return max(float(np.percentile(values[np.isfinite(values)], 99)), 1e-12)
+
+
+def plot_values_on_body(points: np.ndarray, values: dict, title: str, out_path) -> None:
+    """Per-point values coloured on the body (body frame, m), one row each, seen from +z (pole) and from -y (side).
+
+    Names ending in "error" get a diverging scale symmetric about 0, names
+    ending in "error (deg)" a sequential one from 0; a row named "refined X"
+    shares the scale of "X" (the 99th percentile of both magnitudes) so that
+    the two compare. Other names get viridis.
+    """
+    def quantity(name):
+        return name.removeprefix("refined ")
+
+    limits = {quantity(name): _scale_limit([v for other, v in values.items() if quantity(other) == quantity(name)]) for name in values}
+    fig, axes = plt.subplots(len(values), 2, figsize=(11, 3.2 * len(values)), squeeze=False)
+    for row, (name, value) in enumerate(values.items()):
+        finite = np.isfinite(value)
+        limit = limits[quantity(name)]
         if name.endswith("error"):
-            limit = max(float(np.percentile(np.abs(values), 99)), 1e-12)
             style = {"cmap": "coolwarm", "vmin": -limit, "vmax": limit}
+        elif name.endswith("error (deg)"):
+            style = {"cmap": "magma_r", "vmin": 0.0, "vmax": limit}
         else:
             style = {"cmap": "viridis"}
         for col, (i, j, view) in enumerate([(0, 1, "from the pole (+z)"), (0, 2, "from the side (-y)")]):
             ax = axes[row, col]
-            order = np.argsort(points[:, 3 - i - j])  # draw the far side first
+            order = np.argsort(points[finite, 3 - i - j])  # draw the far side first
             if col == 1:
                 order = order[::-1]
-            scatter = ax.scatter(points[order, i], points[order, j], c=values[order], s=2, **style)
+            shown, colours = points[finite][order], value[finite][order]
+            scatter = ax.scatter(shown[:, i], shown[:, j], c=colours, s=2 if len(shown) > 3000 else 6, **style)
             ax.set_aspect("equal")
             ax.set_title(f"{name}, {view}", fontsize=9)
             ax.set_xlabel("x (m)", fontsize=8)
             ax.set_ylabel("yz"[j - 1] + " (m)", fontsize=8)
             fig.colorbar(scatter, ax=ax, shrink=0.8)
     fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)
+
+
+TABLE2_STAGES = [("", "cloud"), ("_refined", "refined"), ("_true_normals", "true\nnormals"), ("_true_surface", "+ true\nsurface"), ("_true_cameras", "+ true\ncameras")]
+
+
+def plot_table2_stages(table: pd.DataFrame, method: str, out_path, bounds=(0.5, 0.01, 0.01)) -> None:
+    """The absolute errors of ``method`` on every registered set, from the cloud through refinement to the truth put in part by part.
+
+    One line per set and prior setting; dashed: the bounds the issue asks for after refinement.
+    """
+    rows = table[(table.method == method) & table.registration_ok.fillna(False).astype(bool)]
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
+    for ax, key, label, bound in zip(axes, ("light_dir_err_deg", "albedo_err", "k_err"), ("light direction error (deg)", "|albedo error|", "|k error|"), bounds):
+        stages = [(suffix, title) for suffix, title in TABLE2_STAGES if f"{key}{suffix}" in rows]
+        for _, row in rows.iterrows():
+            values = [abs(row[f"{key}{suffix}"]) for suffix, _ in stages]
+            ax.plot(range(len(stages)), np.maximum(values, 1e-5), marker="o", lw=0.8, alpha=0.6, color="tab:blue" if row.priors == "on" else "tab:orange")
+        ax.axhline(bound, color="k", ls="--", lw=0.8)
+        ax.set_xticks(range(len(stages)), [title for _, title in stages], fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel(label)
+    axes[0].plot([], [], color="tab:blue", label="priors on")
+    axes[0].plot([], [], color="tab:orange", label="priors off")
+    axes[0].plot([], [], color="k", ls="--", label="bound after refinement")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Table 2, {method}: errors per set, from the reconstructed cloud to the truth put in part by part")
     fig.tight_layout()
     fig.savefig(out_path, dpi=110)
     plt.close(fig)

@@ -317,3 +317,17 @@ def write_monte_carlo_table(draw_csvs, out_csv, out_markdown) -> None:
     table.to_csv(out_csv, index=False)
     Path(out_markdown).write_text(metrics.monte_carlo_markdown(table))
     log.info("noise Monte Carlo: %d sets", len(table) - 1)
+
+
+def write_table2_plots(table_csv, cloud_errors_npz, method: str, title: str, out_stages_png, out_cloud_png) -> None:
+    """Table 2's figures: errors from cloud to truth per set, and one set's cloud coloured by its per-point errors."""
+    from . import plots
+
+    plots.plot_table2_stages(pd.read_csv(table_csv), method, out_stages_png)
+    with np.load(cloud_errors_npz) as data:
+        values = {
+            "k error": data["k_error"], "refined k error": data["k_error_refined"],
+            "normal error (deg)": data["normal_error_deg"], "refined normal error (deg)": data["normal_error_deg_refined"],
+        }
+        points = data["points_body"]
+    plots.plot_values_on_body(points, values, title, out_cloud_png)

@@ -271,4 +271,23 @@ def table2_markdown(table: pd.DataFrame) -> str:
             lines.append("| " + " | ".join(cells) + " |")
         worst = {key: group[key].abs().max() for key in ("light_dir_err_deg_refined", "albedo_err_refined", "k_err_refined") if key in group}
         lines += ["", "Worst after refinement: " + ", ".join(f"{k} {v:.3g}" for k, v in worst.items()) + f"; registered {int(group.registration_ok.sum())}/{len(group)}", ""]
+    lines += error_decomposition_markdown(table)
     return "\n".join(lines)
+
+
+def error_decomposition_markdown(table: pd.DataFrame) -> list[str]:
+    """Median absolute errors over the registered sets as the truth is put in, one part at a time (:func:`oracle_rows`)."""
+    if "k_err_true_cameras" not in table:
+        return []
+    stages = [("", "the cloud as reconstructed"), ("_refined", "after photometric refinement"), ("_true_normals", "true normals"),
+              ("_true_surface", "+ true surface points"), ("_true_cameras", "+ true cameras")]
+    lines = ["## Where the error comes from", "",
+             "Median over the registered sets of the absolute errors, with the truth put in one part at a time "
+             "(same images, same estimator; `_true_*` columns of table2.csv).", ""]
+    for (priors, method), group in table[table.registration_ok.fillna(False).astype(bool)].groupby(["priors", "method"], sort=True):
+        lines += [f"### priors {priors}, {method}", "", "| | light err (deg) | albedo err | k err |", "|---|---|---|---|"]
+        for suffix, title in stages:
+            cells = [f"{group[f'{key}{suffix}'].abs().median():.4g}" for key in ("light_dir_err_deg", "albedo_err", "k_err")]
+            lines.append(f"| {title} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines

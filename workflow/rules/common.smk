@@ -26,6 +26,9 @@ PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["pr
 MONTE_CARLO_SETS = BASE_SETS if config["noise_monte_carlo"]["realisations"] > 0 else []
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
 ESTIMATORS = config["estimators"]
+# Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.
+TABLE2_PLOT_METHOD = "koizumi_lm" if "koizumi_lm" in ESTIMATORS else ESTIMATORS[0]
+TABLE2_PLOT_SET = BASE_SETS[-1]
 NAME = "[A-Za-z0-9-]+"
 RENDERED_SET = f"light[^/_]+_albedo[^/_]+_k[^/_]+(_map-{NAME})?"
 

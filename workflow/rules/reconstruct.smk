@@ -79,3 +79,21 @@ rule tabulate_table2:
         "../../envs/photometry.yaml"
     script:
         "../scripts/tabulate_table2.py"
+
+
+rule plot_table2:
+    input:
+        table=rules.tabulate_table2.output.csv,
+        cloud_errors=f"results/fits_cloud/{TABLE2_PLOT_SET}/priors-{PRIOR_SETTINGS[0] if PRIOR_SETTINGS else 'on'}/{TABLE2_PLOT_METHOD}.npz",
+    output:
+        stages=report("results/plots/table2_errors.png", caption="../report/table2_plots.rst", category="Plots"),
+        cloud=report("results/plots/table2_cloud_errors.png", caption="../report/table2_plots.rst", category="Plots"),
+    params:
+        method=TABLE2_PLOT_METHOD,
+        title=f"{TABLE2_PLOT_SET}, priors {PRIOR_SETTINGS[0] if PRIOR_SETTINGS else 'on'}, {TABLE2_PLOT_METHOD}: the reconstructed cloud's per-point errors",
+    log:
+        "logs/plot_table2.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/plot_table2.py"
