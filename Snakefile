@@ -16,14 +16,19 @@ include: "workflow/rules/tabulate.smk"
 include: "workflow/rules/reconstruct.smk"
 
 
+# The optional outputs, each only when its part of the experiment is configured.
+OPTIONAL_TARGETS = [
+    *(["results/plots/noise_against_bound.png"] if "noise" in SWEEPS else []),
+    *(["results/tables/table2.csv", "results/plots/table2_errors.png"] if PRIOR_SETTINGS else []),
+    *(["results/tables/noise_monte_carlo.csv"] if MONTE_CARLO_SETS else []),
+]
+
+
 rule all:
     input:
         rules.tabulate_table1.output,
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
         expand("results/tables/{sweep}.csv", sweep=SWEEPS),
-        expand("results/plots/noise_against_bound.png", _=[1] if "noise" in SWEEPS else []),
-        expand("results/tables/table2.csv", _=[1] if PRIOR_SETTINGS else []),
-        expand("results/plots/table2_errors.png", _=[1] if PRIOR_SETTINGS else []),
-        expand("results/tables/noise_monte_carlo.csv", _=[1] if MONTE_CARLO_SETS else []),
+        OPTIONAL_TARGETS,
         expand("results/plots/error_map_{map_name}.png", map_name=[m["name"] for m in config["surface_maps"]]),

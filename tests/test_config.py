@@ -252,6 +252,23 @@ def test_command_line_strings_are_read_as_the_schema_asks():
     assert filled["shape_model_path"] is None
 
 
+@pytest.mark.parametrize("spelling, expected", [("false", False), ("False", False), ("true", True), ("TRUE", True)])
+def test_command_line_booleans_are_read_as_booleans(spelling, expected):
+    from snakemake.cli import parse_config
+
+    overrides = parse_config(
+        ["albedos=[0.6]", "minnaert_k=[1]", "light_angles_deg=[0]", f"reconstruction={{enabled: {spelling}, priors: [{spelling}]}}"]
+    )
+    assert overrides["reconstruction"]["enabled"] == spelling  # Snakemake hands it over as a string
+    filled = validate_config(overrides)
+    assert filled["reconstruction"]["enabled"] is expected and filled["reconstruction"]["priors"] == [expected]
+
+
+def test_a_word_is_not_a_boolean(test_config):
+    test_config["reconstruction"] = {"enabled": "yes please"}
+    assert "config key 'reconstruction.enabled': 'yes please' is not of type 'boolean'" in _error(test_config)
+
+
 def test_strings_that_are_not_numbers_still_fail(test_config):
     test_config["albedos"] = ["half"]
     assert "config key 'albedos[0]': 'half' is not of type 'number'" in _error(test_config)

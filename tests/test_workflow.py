@@ -36,11 +36,7 @@ def test_lint_is_clean(shared_dir):
 def test_dry_run_of_the_full_config(shared_dir, tmp_path):
     run = snakemake("-n", "--cores", "2", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"), "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}")
     assert run.returncode == 0, run.stdout + run.stderr
-    jobs = {}
-    for line in run.stdout.splitlines():
-        parts = line.split()
-        if len(parts) == 2 and parts[1].isdigit():
-            jobs[parts[0]] = int(parts[1])
+    jobs = _job_counts(run.stdout)
     # 16 sets of Table 1, the same 16 with a varying surface, and 3 noise levels of the first 16.
     assert jobs["render"] == 32
     assert jobs["add_noise"] == 48
@@ -55,6 +51,28 @@ def test_dry_run_without_local_model_plans_the_download(tmp_path):
     run = snakemake("-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"))
     assert run.returncode == 0, run.stdout + run.stderr
     assert "fetch_shape_model" in run.stdout
+
+
+def _job_counts(stdout):
+    jobs = {}
+    for line in stdout.splitlines():
+        parts = line.split()
+        if len(parts) == 2 and parts[1].isdigit():
+            jobs[parts[0]] = int(parts[1])
+    return jobs
+
+
+def test_dry_run_with_the_optional_parts_off_plans_table1_only(shared_dir, tmp_path):
+    run = snakemake(
+        "-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"),
+        "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}", "noise_levels=[]", "surface_maps=[]",
+        "noise_monte_carlo={'level': 'amica12', 'realisations': 0}", "reconstruction={'enabled': False}",
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    jobs = _job_counts(run.stdout)
+    assert jobs["render"] == 16 and jobs["fit"] == 16 * 3 and jobs["tabulate_table1"] == 1
+    for absent in ("add_noise", "plot_noise", "tabulate_sweep", "noise_monte_carlo", "reconstruct", "tabulate_table2", "plot_table2", "plot_error_map"):
+        assert absent not in jobs, absent
 
 
 def test_bad_config_is_refused_naming_the_key(tmp_path):

@@ -12,8 +12,10 @@ Snakemake parses ``--config`` values with int, float and then YAML's
 BaseLoader, so ``--config 'albedos=[0.6]'`` arrives as ``['0.6']`` (strings
 inside lists and mappings). Before validating, strings are therefore read as
 numbers wherever the schema asks for a number and does not allow a string,
-and the YAML spellings of null (``null``, ``~``, the empty string) become
-``None`` wherever the schema allows null.
+the YAML spellings of null (``null``, ``~``, the empty string) become
+``None`` wherever the schema allows null, and ``true`` / ``false`` (any of
+YAML's or Python's spellings) become booleans wherever the schema asks for a
+boolean and does not allow a string.
 """
 
 import copy
@@ -31,6 +33,8 @@ __all__ = ["SCHEMA_PATH", "ConfigError", "load_schema", "validate_config"]
 SCHEMA_PATH = Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
 
 _NULL_SPELLINGS = {"", "~", "null", "Null", "NULL"}
+# YAML 1.2's spellings of the booleans, and Python's (a nested --config value is YAML or a Python literal).
+_BOOLEAN_SPELLINGS = {"true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False}
 
 
 class ConfigError(ValueError):
@@ -82,6 +86,8 @@ def _coerce(value, schema):
     if isinstance(value, str):
         if "null" in types and value.strip() in _NULL_SPELLINGS:
             return None
+        if "boolean" in types and "string" not in types and value.strip() in _BOOLEAN_SPELLINGS:
+            return _BOOLEAN_SPELLINGS[value.strip()]
         if "string" not in types and types & {"integer", "number"}:
             text = value.strip()
             try:
