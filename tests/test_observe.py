@@ -111,3 +111,24 @@ def test_projection_selection_keeps_more_but_mixed_pixels(two_spheres):
 def test_unknown_pixel_selection_is_refused(two_spheres):
     with pytest.raises(ValueError, match="pixel_selection"):
         observations(two_spheres, 0.0, "nearest")
+
+
+def test_a_shadow_sliver_across_a_lit_facet_removes_only_the_pixels_it_covers():
+    """A thin bar's shadow crosses a big facet away from its centroid and vertices: the facet test passes, the pixel test does not."""
+    wall = np.array([[0.0, -100, -100], [0, 100, -100], [0, 100, 100], [0, -100, 100]])
+    bar = np.array([[20.0, 18, -150], [20, 22, -150], [20, 22, 150], [20, 18, 150]])
+    vertices = np.vstack([wall, bar])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    centroids, normals = facet_table(vertices, faces)
+    normals[:2] *= np.sign(normals[:2, 0:1])  # the wall faces +x, towards camera 0 and the Sun
+    geometry = cameras.make_imaging_geometry(n_images=4, image_size=256, camera_distance_km=1.5, view_latitude_deg=0.0, body_radius_m=185.0)
+    raycaster = observe.BodyRaycaster(vertices, faces)
+    light_body = np.array([1.0, 0.0, 0.0])
+    assert observe.facet_unshadowed(raycaster, vertices, faces, centroids, normals, np.array([0, 1]), light_body).all()
+    pose = geometry.body_to_camera[0]
+    spots = np.array([[0.0, 20.0, 0.0], [0.0, -50.0, 0.0], [0.0, 20.0, 60.0], [0.0, 60.0, -30.0]])  # in the shadow, lit, in it, lit
+    uv = cameras.project(spots @ pose[:3, :3].T + pose[:3, 3], geometry.intrinsics)
+    cols, rows = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+    facet = np.where(spots[:, 2] >= spots[:, 1], 1, 0)  # the wall's second triangle holds z >= y
+    lit = observe.pixel_footprint_unshadowed(raycaster, geometry, 0, rows, cols, centroids[facet], normals[facet], light_body)
+    assert lit.tolist() == [False, True, False, True]

@@ -161,6 +161,28 @@ def facet_unshadowed(raycaster: BodyRaycaster, vertices_m, faces, centroids_m, n
     return ~raycaster.occluded(starts, directions).any(axis=1)
 
 
+def pixel_footprint_unshadowed(raycaster: BodyRaycaster, geometry: ImagingGeometry, image: int, rows, cols, facet_points, facet_normals, light_dir_body) -> np.ndarray:
+    """Whether the surface seen through each pixel's four corners and centre is in sunlight.
+
+    ``facet_points`` and ``facet_normals`` (n, 3) give the plane of the facet
+    each pixel sees (pure pixels: all five rays hit that facet). A facet can be
+    lit at its centroid and near its vertices and still carry a sliver of cast
+    shadow; at 1024 pixels 20 such pixels of 373,519 (brightness 6 to 42 %
+    low) made the light error up to 0.002 deg instead of 1e-5, and the
+    per-point k RMSE 9e-4 instead of 1e-5. This tests the pixel itself.
+    """
+    centre_body = camera_centres_body(geometry.body_to_camera[image : image + 1])[0]
+    rotation = geometry.body_to_camera[image, :3, :3]
+    offsets = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [0.5, 0.5]])
+    u = cols[:, None] + offsets[None, :, 0]
+    v = rows[:, None] + offsets[None, :, 1]
+    directions = pixel_rays_cam(geometry.intrinsics, u, v) @ rotation  # (n, 5, 3) body frame
+    # Where each ray meets the facet's plane; then a shadow ray from just above it.
+    depth = np.einsum("nj,nj->n", facet_normals, facet_points - centre_body)[:, None] / np.einsum("nj,nkj->nk", facet_normals, directions)
+    starts = centre_body + depth[..., None] * directions + SHADOW_RAY_OFFSET_M * facet_normals[:, None, :]
+    return ~raycaster.occluded(starts, np.broadcast_to(light_dir_body, starts.shape)).any(axis=1)
+
+
 def observation_geometry(
     vertices_m: np.ndarray,
     faces: np.ndarray,
@@ -203,6 +225,11 @@ def observation_geometry(
         counts["facing"] += int(candidate.sum())
         light_dir_body = rotation.T @ light_dir_cam
         candidate[candidate] = facet_unshadowed(raycaster, vertices_m, faces, centroids_m, normals, facets[candidate], light_dir_body)
+        if pixel_selection == "pure":
+            lit = facets[candidate]
+            candidate[candidate] = pixel_footprint_unshadowed(
+                raycaster, geometry, image, row[candidate], col[candidate], centroids_m[lit], normals[lit], light_dir_body,
+            )
         counts["lit"] += int(candidate.sum())
 
         kept["point_index"].append(facets[candidate])
