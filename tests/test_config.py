@@ -295,6 +295,8 @@ def test_monte_carlo_level_must_name_a_noise_level(test_config):
 
 def test_monte_carlo_off_needs_no_noise_level(test_config):
     test_config["noise_levels"] = []
+    test_config["noise_monte_carlo"] = {"level": "amica12", "realisations": 4}  # no noise at all: nothing to repeat
+    assert validate_config(test_config)["noise_monte_carlo"]["realisations"] == 4
     test_config["noise_monte_carlo"] = {"level": "amica12", "realisations": 0}
     assert validate_config(test_config)["noise_monte_carlo"]["realisations"] == 0
     del test_config["noise_monte_carlo"]

@@ -177,10 +177,10 @@ def validate_config(config):
 def _check_cross_references(config):
     """What a JSON Schema cannot say: a key that names an entry of another key."""
     study = config.get("noise_monte_carlo", {})
-    if study.get("realisations", 0) > 0:
-        names = [level.get("name") for level in config.get("noise_levels", [])]
-        if study["level"] not in names:
-            raise ConfigError(
-                f"config key 'noise_monte_carlo.level': {study['level']!r} is not the name of a 'noise_levels' entry "
-                f"(names: {names or 'none, the list is empty'}); name one, or set noise_monte_carlo.realisations to 0"
-            )
+    names = [level.get("name") for level in config.get("noise_levels", [])]
+    # An empty noise_levels turns the noise off, the Monte Carlo with it; a name that is not there is a mistake.
+    if study.get("realisations", 0) > 0 and names and study["level"] not in names:
+        raise ConfigError(
+            f"config key 'noise_monte_carlo.level': {study['level']!r} is not the name of a 'noise_levels' entry "
+            f"(names: {names}); name one, or set noise_monte_carlo.realisations to 0"
+        )
