@@ -171,6 +171,14 @@ def runtime_table(benchmark_paths) -> pd.DataFrame:
     return pd.concat([table, totals[["stage", "job", "seconds", "max_rss_mb"]]], ignore_index=True)
 
 
+#: Table 2's stages, from the reconstructed cloud to the truth put in part by part:
+#: (column suffix, label). ``light_dir_err_deg{suffix}`` and the like are table2.csv's columns.
+TABLE2_STAGES = (
+    ("", "cloud"), ("_refined", "refined"), ("_true_normals", "true normals"),
+    ("_true_surface", "+ true surface"), ("_true_cameras", "+ true cameras"),
+)
+
+
 def _monte_carlo_row(draws: pd.DataFrame) -> dict:
     """What many noise draws say about an estimator against its Cramer-Rao bound.
 

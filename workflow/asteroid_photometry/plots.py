@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import textwrap
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -9,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from .metrics import with_paper  # noqa: E402
+from .metrics import TABLE2_STAGES, with_paper  # noqa: E402
 
 QUANTITIES = {
     "light": ("light_deg_est", "light_deg_true", "light angle error (deg)"),
@@ -126,9 +128,6 @@ def plot_values_on_body(points: np.ndarray, values: dict, title: str, out_path) 
     plt.close(fig)
 
 
-TABLE2_STAGES = [("", "cloud"), ("_refined", "refined"), ("_true_normals", "true\nnormals"), ("_true_surface", "+ true\nsurface"), ("_true_cameras", "+ true\ncameras")]
-
-
 def plot_table2_stages(table: pd.DataFrame, method: str, out_path, bounds=(0.5, 0.01, 0.01)) -> None:
     """The absolute errors of ``method`` on every registered set, from the cloud through refinement to the truth put in part by part.
 
@@ -142,7 +141,7 @@ def plot_table2_stages(table: pd.DataFrame, method: str, out_path, bounds=(0.5, 
             values = [abs(row[f"{key}{suffix}"]) for suffix, _ in stages]
             ax.plot(range(len(stages)), np.maximum(values, 1e-5), marker="o", lw=0.8, alpha=0.6, color="tab:blue" if row.priors == "on" else "tab:orange")
         ax.axhline(bound, color="k", ls="--", lw=0.8)
-        ax.set_xticks(range(len(stages)), [title for _, title in stages], fontsize=8)
+        ax.set_xticks(range(len(stages)), [textwrap.fill(title, 8) for _, title in stages], fontsize=8)
         ax.set_yscale("log")
         ax.set_ylabel(label)
     axes[0].plot([], [], color="tab:blue", label="priors on")

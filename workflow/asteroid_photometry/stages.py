@@ -172,6 +172,11 @@ def observations_from_arrays(arrays: dict) -> estimate.Observations:
     )
 
 
+def truth_from_arrays(arrays: dict) -> metrics.Truth:
+    """The true light, albedo and k that ``observation_arrays`` stores beside the observations."""
+    return metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=arrays["albedo_true"], minnaert_k=arrays["minnaert_k_true"])
+
+
 def run_estimator(obs: estimate.Observations, method: str, image_set: ImageSet, variance=None) -> estimate.FitResult:
     """One estimator on one set's observations; ``variance`` (per observation) weights varpro's fit."""
     if method == "varpro":
@@ -189,7 +194,7 @@ def fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, o
     obs, arrays = load_observations(observations_npz)
     result = run_estimator(obs, method, image_set, arrays.get("variance"))
     log.info("%s: %s after %d iterations, %.2f s: %s", method, "converged" if result.success else "NOT converged", result.n_iterations, result.fit_seconds, result.message)
-    truth = metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=arrays["albedo_true"], minnaert_k=arrays["minnaert_k_true"])
+    truth = truth_from_arrays(arrays)
     row = metrics.summary_row(set_id, result, truth)
     row.update(noise_level=image_set.noise_level, surface_map=image_set.surface_map)
     if "sensor_json" in arrays and method != "iwano_linear":  # the bound is for per-point albedo and k
@@ -304,7 +309,7 @@ def noise_monte_carlo_set(geometry_npz, clean_dir, sensor_entry: dict, base_seed
         arrays = observation_arrays(obs_geometry, frames, [noise.apply_sensor_noise(image, sensor, rng) for image in clean], clean_dir)
         obs = observations_from_arrays(arrays)
         result = run_estimator(obs, "varpro", image_set, arrays["variance"])
-        truth = metrics.Truth(light_dir_cam=arrays["light_dir_cam_true"], albedo=arrays["albedo_true"], minnaert_k=arrays["minnaert_k_true"])
+        truth = truth_from_arrays(arrays)
         row = metrics.summary_row(set_id, result, truth)
         row.update(noise_level=sensor.name, draw=draw, **cramer_rao_summary(obs, arrays, result))
         log.info("draw %d: light %.3f deg (%.2f sigma), efficiency albedo %.2f, k %.2f", draw, row["light_dir_err_deg"], row["light_err_sigma"], row["efficiency_albedo"], row["efficiency_k"])

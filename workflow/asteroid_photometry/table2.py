@@ -105,19 +105,17 @@ def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_j
     log.info("registration and quality: %s", summary)
 
 
-def _truth_for_points(points_body, shape: dict, render_dir):
-    """Per-point true albedo, k and normal from the closest facet of the shape model."""
-    facets = register.closest_facet(points_body, shape["vertices_m"], shape["faces"])
+def _truth_for_facets(facets, shape: dict, frames: dict, render_dir):
+    """Per-point true albedo, k and normal of the given facets of the shape model, and the true light."""
     maps_path = Path(render_dir) / FACET_MAPS_FILE
-    frames = json.loads((Path(render_dir) / "frames.json").read_text())
     if maps_path.exists():
         from .surface_maps import load_facet_maps
 
         albedo_map, k_map = load_facet_maps(maps_path)
         albedo, minnaert_k = albedo_map[facets], k_map[facets]
     else:
-        albedo = np.full(len(points_body), float(frames["albedo"]))
-        minnaert_k = np.full(len(points_body), float(frames["minnaert_k"]))
+        albedo = np.full(len(facets), float(frames["albedo"]))
+        minnaert_k = np.full(len(facets), float(frames["minnaert_k"]))
     return albedo, minnaert_k, shape["normals"][facets], np.asarray(frames["light_dir_cam"])
 
 
@@ -137,40 +135,36 @@ def _run(method: str, obs, minnaert_k_known: float):
 ORACLE_COLUMNS = ("light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse")
 
 
-def oracle_rows(method: str, oriented, transform, shape: dict, render_dir, recon, images, settings: dict, known_k: float) -> dict:
+def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: metrics.Truth, shape: dict, frames: dict, recon, images, settings: dict, known_k: float) -> dict:
     """Where the cloud's error comes from: the same estimator with the truth put in, one part at a time.
 
+    ``surface_body`` and ``facets``: each registered point's closest point on
+    the true surface (body frame) and its facet, whose values ``truth`` holds.
     ``true_normals``: the reconstructed points and cameras, each point's normal
     replaced by its closest facet's. ``true_surface``: each point also moved
     to its closest point on the true surface, still seen through the
     reconstructed cameras. ``true_cameras``: those surface points seen through
     the true cameras as well (the registered images only); what is left then
     is the sampling itself, a point anywhere on a facet of about two pixels
-    against the pure pixels of Table 1. All need the registration (truth
-    frame to cloud frame).
+    against the pure pixels of Table 1. All need the registration
+    (``transform``: cloud frame to body frame).
     """
-    frames = json.loads((Path(render_dir) / "frames.json").read_text())
-    points_body = register.transform_points(transform, oriented.points)
-    facets = register.closest_facet(points_body, shape["vertices_m"], shape["faces"])
-    surface_body, surface_facets = register.SurfaceQuery(shape["vertices_m"], shape["faces"]).closest(points_body)
     poses = recon.body_to_camera()
     true_poses = {index: np.asarray(frames["images"][index]["body_to_camera"], dtype=float) for index in poses}
     body_to_cloud = np.linalg.inv(transform)
+    normals_body = shape["normals"][facets]
     row = {}
-    # (name, points and normals in the body frame, the frame of the cameras, the cameras, their intrinsics)
-    for name, points_body_used, normals_body, body_to_frame, cameras, intrinsics in (
-        ("true_normals", points_body, shape["normals"][facets], body_to_cloud, poses, recon.intrinsics()),
-        ("true_surface", surface_body, shape["normals"][surface_facets], body_to_cloud, poses, recon.intrinsics()),
-        ("true_cameras", surface_body, shape["normals"][surface_facets], np.eye(4), true_poses, Intrinsics(**frames["intrinsics"])),
+    # (name, points in the frame of the cameras, those cameras, their intrinsics, body to that frame)
+    for name, points, cameras, intrinsics, body_to_frame in (
+        ("true_normals", oriented.points, poses, recon.intrinsics(), body_to_cloud),
+        ("true_surface", register.transform_points(body_to_cloud, surface_body), poses, recon.intrinsics(), body_to_cloud),
+        ("true_cameras", surface_body, true_poses, Intrinsics(**frames["intrinsics"]), np.eye(4)),
     ):
-        swapped = cloud_lib.OrientedCloud(
-            register.transform_points(body_to_frame, points_body_used), register.transform_normals(body_to_frame, normals_body), oriented.track_length,
-        )
+        swapped = cloud_lib.OrientedCloud(points, register.transform_normals(body_to_frame, normals_body), oriented.track_length)
         obs, _ = cloud_lib.cloud_observations(
             swapped, cameras, intrinsics, images, min_cos_emission=settings["min_cos_emission"], min_observations=settings["min_observations_per_point"],
         )
-        albedo_true, k_true, _, light_true = _truth_for_points(points_body_used, shape, render_dir)
-        fitted = metrics.summary_row("", _run(method, obs, known_k), metrics.Truth(light_dir_cam=light_true, albedo=albedo_true, minnaert_k=k_true))
+        fitted = metrics.summary_row("", _run(method, obs, known_k), truth)
         row.update({f"{key}_{name}": fitted[key] for key in ORACLE_COLUMNS})
     return row
 
@@ -189,7 +183,8 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
     )
     rotations = np.array([poses[i][:3, :3] for i in image_index])
     points_body = register.transform_points(transform, oriented.points)
-    albedo_true, k_true, normals_true, light_true = _truth_for_points(points_body, shape, render_dir)
+    surface_body, facets = register.SurfaceQuery(shape["vertices_m"], shape["faces"]).closest(points_body)
+    albedo_true, k_true, normals_true, light_true = _truth_for_facets(facets, shape, frames, render_dir)
     truth = metrics.Truth(light_dir_cam=light_true, albedo=albedo_true, minnaert_k=k_true)
 
     known_k = float(np.median(k_true))  # Iwano's baseline is given k
@@ -222,7 +217,7 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
     )
     row.update(json.loads(Path(registration_json).read_text()))
     if row.get("registration_ok"):
-        row.update(oracle_rows(method, oriented, transform, shape, render_dir, recon, images, settings, known_k))
+        row.update(oracle_rows(method, oriented, transform, surface_body, facets, truth, shape, frames, recon, images, settings, known_k))
     Path(out_json).write_text(json.dumps(row, indent=1))
     np.savez_compressed(
         out_npz, points_body=points_body, albedo_error=before.albedo - albedo_true, k_error=before.minnaert_k - k_true,
@@ -279,14 +274,12 @@ def error_decomposition_markdown(table: pd.DataFrame) -> list[str]:
     """Median absolute errors over the registered sets as the truth is put in, one part at a time (:func:`oracle_rows`)."""
     if "k_err_true_cameras" not in table:
         return []
-    stages = [("", "the cloud as reconstructed"), ("_refined", "after photometric refinement"), ("_true_normals", "true normals"),
-              ("_true_surface", "+ true surface points"), ("_true_cameras", "+ true cameras")]
     lines = ["## Where the error comes from", "",
              "Median over the registered sets of the absolute errors, with the truth put in one part at a time "
              "(same images, same estimator; `_true_*` columns of table2.csv).", ""]
     for (priors, method), group in table[table.registration_ok.fillna(False).astype(bool)].groupby(["priors", "method"], sort=True):
         lines += [f"### priors {priors}, {method}", "", "| | light err (deg) | albedo err | k err |", "|---|---|---|---|"]
-        for suffix, title in stages:
+        for suffix, title in metrics.TABLE2_STAGES:
             cells = [f"{group[f'{key}{suffix}'].abs().median():.4g}" for key in ("light_dir_err_deg", "albedo_err", "k_err")]
             lines.append(f"| {title} | " + " | ".join(cells) + " |")
         lines.append("")
