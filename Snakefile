@@ -21,6 +21,7 @@ OPTIONAL_TARGETS = [
     *(["results/plots/noise_against_bound.png"] if "noise" in SWEEPS else []),
     *(["results/tables/table2.csv", "results/plots/table2_errors.png"] if PRIOR_SETTINGS else []),
     *(["results/tables/noise_monte_carlo.csv"] if MONTE_CARLO_SETS else []),
+    *(["results/tables/geometry_sensitivity.csv"] if SENSITIVITY_SETS else []),
 ]
 
 

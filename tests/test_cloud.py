@@ -95,3 +95,20 @@ def test_cloud_observations_sample_each_point_where_it_projects():
     uv = points_cam[:, :2] / points_cam[:, 2:] * intrinsics.focal_px + [intrinsics.cx, intrinsics.cy]
     assert np.allclose(obs.brightness, 1.0 + (uv[:, 0] - 0.5) + 1000.0 * (uv[:, 1] - 0.5), atol=1e-6)
     assert np.all(obs.cos_emission >= 0.3)
+
+
+def test_pure_samples_are_those_whose_bilinear_pixels_agree():
+    # Two flat regions split by a vertical edge between pixel columns 9 and 10,
+    # and one mixed column (10) that averages them, as a facet edge renders.
+    image = np.full((20, 20), 0.30)
+    image[:, 10] = 0.42
+    image[:, 11:] = 0.60
+    # Pixel centres sit at half-integer (u, v); a sample reads the four around it.
+    uv = np.array([[5.0, 5.0], [15.0, 8.0], [10.0, 5.0], [10.6, 12.0], [11.2, 3.0]])
+    values = cloud.sample_pure(image, uv, tolerance=1e-3)
+    np.testing.assert_allclose(values[:2], [0.30, 0.60])
+    assert (values[2:] == 0).all()  # every sample that reads the mixed column or straddles the edge
+    # A tolerance wider than the step between regions lets mixtures through.
+    assert cloud.sample_pure(image, uv[2:3], tolerance=0.5)[0] > 0
+    # Unlit pixels are never pure samples.
+    assert cloud.sample_pure(np.zeros((20, 20)), uv[:1], tolerance=1e-3)[0] == 0

@@ -46,7 +46,7 @@ def _walk_object_schemas(schema, path="<top level>"):
 def test_schema_forbids_unknown_keys_and_describes_every_key():
     schema = load_schema()
     objects = list(_walk_object_schemas(schema))
-    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "reconstruction"]
+    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "reconstruction", "geometry_sensitivity"]
     for path, object_schema in objects:
         assert object_schema.get("additionalProperties") is False, path
         for key, subschema in object_schema["properties"].items():

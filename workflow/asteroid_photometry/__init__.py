@@ -7,6 +7,13 @@ The library behind the Snakemake workflow. Each module is one stage:
 - ``render``: the Minnaert BSDF as a Mitsuba plugin and the image renderer.
 - ``observe``: visibility, shadows and brightness sampling of surface points.
 - ``estimate``: the paper's joint Levenberg-Marquardt fit and Iwano's baseline.
+- ``varpro``: the default estimator (variable projection, weighted, robust).
+- ``noise`` / ``fisher``: the sensor model and the Cramer-Rao bound.
+- ``surface_maps``: spatially varying albedo and k.
+- ``reconstruct`` / ``cloud`` / ``register`` / ``quality`` / ``refine`` /
+  ``table2``: Table 2 from images alone, scored against the truth.
+- ``sensitivity``: what the estimator needs from the geometry.
+- ``stages``: the file-level stages the rule scripts call.
 - ``metrics`` / ``plots``: comparison with the truth and with the paper.
 
 Conventions used everywhere

@@ -14,7 +14,8 @@ structure-from-motion model alone (no shape model, no true pose):
    it before any other surface, tested against a Poisson surface meshed from
    the cloud itself (open3d), so the set grows beyond the SIFT track;
 5. brightness: the linear image sampled (bilinearly) at the point's
-   projection through the reconstructed camera.
+   projection through the reconstructed camera; with a ``purity_tolerance``
+   only where the image itself shows the sample pure (``sample_pure``).
 
 The result is an ``estimate.Observations`` in the reconstructed cameras'
 frames, plus the point cloud for scoring after registration.
@@ -81,11 +82,15 @@ def poisson_surface(cloud: OrientedCloud, depth: int = 7):
     return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
 
 
-def visible_pairs(cloud: OrientedCloud, body_to_camera: dict, min_cos_emission: float, occlusion_tolerance: float):
-    """(point, image) pairs where the point faces the camera and nothing of the cloud's surface hides it."""
+def visible_pairs(cloud: OrientedCloud, body_to_camera: dict, min_cos_emission: float, occlusion_tolerance: float, surface=None):
+    """(point, image) pairs where the point faces the camera and nothing hides it.
+
+    ``surface``: (vertices, triangles) to test occlusion against; by default
+    a Poisson surface of the cloud itself.
+    """
     import open3d as o3d
 
-    vertices, triangles = poisson_surface(cloud)
+    vertices, triangles = poisson_surface(cloud) if surface is None else surface
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
     point_ids, image_ids = [], []
@@ -110,15 +115,45 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return map_coordinates(image, [uv[:, 1] - 0.5, uv[:, 0] - 0.5], order=1, mode="constant", cval=0.0)
 
 
+def sample_pure(image: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarray:
+    """The image at ``uv`` where the sample is pure by the image's own evidence, else 0.
+
+    Pure: the four pixels a bilinear sample reads agree within ``tolerance``
+    (relative to their mean). On a body of flat facets a pixel wholly on one
+    facet has exactly that facet's brightness, while one straddling an edge,
+    the limb or a shadow boundary takes a mixture that almost never equals
+    its neighbours; four equal pixel centres on one facet enclose the sample
+    (a triangle is convex), so it lies on that facet too. The tolerance must
+    exceed the images' own scatter between pure pixels (rendering noise,
+    sensor noise) and stay below the brightness step between neighbouring
+    facets.
+    """
+    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5
+    height, width = image.shape
+    col = np.clip(np.floor(x).astype(int), 0, width - 2)
+    row = np.clip(np.floor(y).astype(int), 0, height - 2)
+    support = np.stack([image[row, col], image[row, col + 1], image[row + 1, col], image[row + 1, col + 1]])
+    mean = support.mean(axis=0)
+    pure = (np.ptp(support, axis=0) <= tolerance * mean) & (support.min(axis=0) > 0)
+    return np.where(pure, mean, 0.0)
+
+
 def cloud_observations(
     cloud: OrientedCloud, body_to_camera: dict, intrinsics: Intrinsics, images: list[np.ndarray], *,
     min_cos_emission: float = 0.1, min_observations: int = 4, occlusion_tolerance: float | None = None,
+    purity_tolerance: float | None = None, surface=None,
 ) -> tuple[Observations, np.ndarray]:
-    """The estimator's observations of the cloud; also returns the image index of every observation."""
+    """The estimator's observations of the cloud; also returns the image index of every observation.
+
+    ``purity_tolerance``: None samples bilinearly at every projection; a
+    number keeps only the samples ``sample_pure`` finds pure. ``surface``:
+    (vertices, triangles) for the occlusion test instead of the cloud's own
+    Poisson surface.
+    """
     if occlusion_tolerance is None:
         extent = np.ptp(cloud.points, axis=0).max()
         occlusion_tolerance = 0.02 * extent
-    point_index, image_index = visible_pairs(cloud, body_to_camera, min_cos_emission, occlusion_tolerance)
+    point_index, image_index = visible_pairs(cloud, body_to_camera, min_cos_emission, occlusion_tolerance, surface)
     poses = np.array([body_to_camera[i] for i in image_index])
     points_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.points[point_index]) + poses[:, :3, 3]
     uv = project(points_cam, intrinsics)
@@ -126,7 +161,10 @@ def cloud_observations(
     brightness = np.zeros(len(point_index))
     for image in np.unique(image_index):
         rows = np.flatnonzero((image_index == image) & inside)
-        brightness[rows] = sample_bilinear(images[image], uv[rows])
+        if purity_tolerance is None:
+            brightness[rows] = sample_bilinear(images[image], uv[rows])
+        else:
+            brightness[rows] = sample_pure(images[image], uv[rows], purity_tolerance)
     normal_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.normals[point_index])
     view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
     keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -105,7 +106,7 @@ def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_j
     log.info("registration and quality: %s", summary)
 
 
-def _truth_for_facets(facets, shape: dict, frames: dict, render_dir):
+def truth_for_facets(facets, shape: dict, frames: dict, render_dir):
     """Per-point true albedo, k and normal of the given facets of the shape model, and the true light."""
     maps_path = Path(render_dir) / FACET_MAPS_FILE
     if maps_path.exists():
@@ -117,6 +118,27 @@ def _truth_for_facets(facets, shape: dict, frames: dict, render_dir):
         albedo = np.full(len(facets), float(frames["albedo"]))
         minnaert_k = np.full(len(facets), float(frames["minnaert_k"]))
     return albedo, minnaert_k, shape["normals"][facets], np.asarray(frames["light_dir_cam"])
+
+
+#: A cloud point whose fitted Minnaert k leaves this range (physical values
+#: lie near 0.5 to 1.2) has no fit worth scoring: its normal or its samples
+#: are far off, and one such point (k = 4.5, albedo 1e2 to 1e8 from a few
+#: grazing samples) can carry a set's mean albedo error to any value. Such
+#: points are left out, and counted in the log and in n_points.
+PLAUSIBLE_K = (0.0, 3.0)
+
+
+def plausible_points(result: estimate.FitResult) -> estimate.FitResult:
+    """``result`` with the points of implausible k marked unfitted (NaN), for scoring."""
+    low, high = PLAUSIBLE_K
+    implausible = np.isfinite(result.minnaert_k) & ((result.minnaert_k < low) | (result.minnaert_k > high))
+    if not implausible.any():
+        return result
+    log.warning("%s: %d of %d fitted points have k outside [%g, %g] and are left out", result.method, int(implausible.sum()), result.n_points_fitted, low, high)
+    return replace(
+        result, albedo=np.where(implausible, np.nan, result.albedo), minnaert_k=np.where(implausible, np.nan, result.minnaert_k),
+        n_points_fitted=result.n_points_fitted - int(implausible.sum()),
+    )
 
 
 def _run(method: str, obs, minnaert_k_known: float):
@@ -163,8 +185,9 @@ def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: m
         swapped = cloud_lib.OrientedCloud(points, register.transform_normals(body_to_frame, normals_body), oriented.track_length)
         obs, _ = cloud_lib.cloud_observations(
             swapped, cameras, intrinsics, images, min_cos_emission=settings["min_cos_emission"], min_observations=settings["min_observations_per_point"],
+            purity_tolerance=settings.get("purity_tolerance"),
         )
-        fitted = metrics.summary_row("", _run(method, obs, known_k), truth)
+        fitted = metrics.summary_row("", plausible_points(_run(method, obs, known_k)), truth)
         row.update({f"{key}_{name}": fitted[key] for key in ORACLE_COLUMNS})
     return row
 
@@ -180,11 +203,12 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
     poses = recon.body_to_camera()
     obs, image_index = cloud_lib.cloud_observations(
         oriented, poses, recon.intrinsics(), images, min_cos_emission=settings["min_cos_emission"], min_observations=settings["min_observations_per_point"],
+        purity_tolerance=settings.get("purity_tolerance"),
     )
     rotations = np.array([poses[i][:3, :3] for i in image_index])
     points_body = register.transform_points(transform, oriented.points)
     surface_body, facets = register.SurfaceQuery(shape["vertices_m"], shape["faces"]).closest(points_body)
-    albedo_true, k_true, normals_true, light_true = _truth_for_facets(facets, shape, frames, render_dir)
+    albedo_true, k_true, normals_true, light_true = truth_for_facets(facets, shape, frames, render_dir)
     truth = metrics.Truth(light_dir_cam=light_true, albedo=albedo_true, minnaert_k=k_true)
 
     known_k = float(np.median(k_true))  # Iwano's baseline is given k
@@ -195,12 +219,14 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
             f"{len(oriented.points)} cloud points) gives only {obs.n_obs} usable observations; nothing to fit"
         )
     before = _run(method, obs, known_k)
-    row = metrics.summary_row(set_id, before, truth)
+    scored = plausible_points(before)
+    row = metrics.summary_row(set_id, scored, truth)
     tick = time.perf_counter()
     joint = before if method == "koizumi_lm" else estimate.fit_koizumi_lm(obs)
     refined = refine.refine_cloud(obs, rotations, oriented.normals, joint, n_outer=settings["refine_iterations"])
     after = refined.fit if method == "koizumi_lm" else _run(method, refined.observations, known_k)
     refine_seconds = time.perf_counter() - tick
+    before, after = scored, plausible_points(after)
     after_row = metrics.summary_row(set_id, after, truth)
     normals_before = quality.normal_errors_deg(register.transform_normals(transform, oriented.normals), normals_true)
     normals_after = quality.normal_errors_deg(register.transform_normals(transform, refined.normals), normals_true)

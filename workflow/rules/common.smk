@@ -25,6 +25,8 @@ SWEEPS = {sweep: ids for sweep, ids in SWEEPS.items() if ids}
 PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["priors"]] if config["reconstruction"]["enabled"] else []
 # An empty noise_levels turns the noise off, and the noise Monte Carlo with it.
 MONTE_CARLO_SETS = BASE_SETS if config["noise_monte_carlo"]["realisations"] > 0 and config["noise_levels"] else []
+# The geometry sensitivity study explains Table 2: it runs with it.
+SENSITIVITY_SETS = BASE_SETS if config["geometry_sensitivity"]["enabled"] and PRIOR_SETTINGS else []
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
 ESTIMATORS = config["estimators"]
 # Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.

@@ -40,3 +40,28 @@ rule noise_monte_carlo:
         "../../envs/photometry.yaml"
     script:
         "../scripts/noise_monte_carlo.py"
+
+
+# What the estimator needs from the geometry: Table 1's observations with
+# tilted normals, and the true surface sampled as Table 2's cloud is.
+rule geometry_sensitivity:
+    input:
+        observations=rules.observe.output.npz,
+        images="results/render/{set_id}",
+        shape=rules.prepare_shape.output.npz,
+    output:
+        csv="results/geometry_sensitivity/{set_id}.csv",
+    params:
+        image_set=image_set,
+        settings=config["geometry_sensitivity"],
+        observations=config["observations"],
+        cloud=config["reconstruction"],
+    threads: 1
+    log:
+        "logs/geometry_sensitivity/{set_id}.log",
+    benchmark:
+        "benchmarks/geometry_sensitivity/{set_id}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/geometry_sensitivity.py"

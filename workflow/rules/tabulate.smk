@@ -42,6 +42,7 @@ rule tabulate_runtime:
             *expand("benchmarks/observe/{set_id}.tsv", set_id=SETS),
             *expand("benchmarks/fit/{set_id}/{method}.tsv", set_id=SETS, method=ESTIMATORS),
             *expand("benchmarks/noise_monte_carlo/{set_id}.tsv", set_id=MONTE_CARLO_SETS),
+            *expand("benchmarks/geometry_sensitivity/{set_id}.tsv", set_id=SENSITIVITY_SETS),
             *expand("benchmarks/reconstruct/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand("benchmarks/register_cloud/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(
@@ -120,3 +121,18 @@ rule tabulate_noise_monte_carlo:
         "../../envs/photometry.yaml"
     script:
         "../scripts/tabulate_noise_monte_carlo.py"
+
+
+rule tabulate_geometry_sensitivity:
+    input:
+        rows=expand("results/geometry_sensitivity/{set_id}.csv", set_id=SENSITIVITY_SETS),
+    output:
+        csv=report("results/tables/geometry_sensitivity.csv", caption="../report/geometry_sensitivity.rst", category="Tables"),
+        markdown="results/tables/geometry_sensitivity.md",
+        png=report("results/plots/geometry_sensitivity.png", caption="../report/geometry_sensitivity.rst", category="Plots"),
+    log:
+        "logs/tabulate_geometry_sensitivity.log",
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/tabulate_geometry_sensitivity.py"
