@@ -82,3 +82,19 @@ def test_points_of_implausible_k_are_left_out_of_the_score():
     np.testing.assert_array_equal(np.isfinite(kept.albedo), [True, False, False, True])
     np.testing.assert_array_equal(np.isfinite(kept.minnaert_k), [True, False, False, True])
     assert plausible_points(kept) is kept  # nothing left to drop
+
+
+def test_latitude_and_longitude_tilts_move_the_normal_along_its_meridian_or_its_parallel():
+    normals = _unit(np.random.default_rng(8), 2000)
+    normals = normals[np.abs(normals[:, 2]) < 0.95]  # away from the poles, where longitude is ill-defined
+    longitude = np.arctan2(normals[:, 1], normals[:, 0])
+    latitude = np.arcsin(normals[:, 2])
+    along_meridian, angles = sensitivity.tilt_normals(normals, 3.0, np.random.default_rng(9), "latitude")
+    np.testing.assert_allclose(np.arctan2(along_meridian[:, 1], along_meridian[:, 0]), longitude, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.arcsin(along_meridian[:, 2]) - latitude), np.deg2rad(angles), atol=1e-9)
+    along_parallel, angles = sensitivity.tilt_normals(normals, 3.0, np.random.default_rng(9), "longitude")
+    # A great-circle step along the parallel's tangent: no first-order change of latitude, sin(lat) * cos(tilt) exactly.
+    np.testing.assert_allclose(along_parallel[:, 2], normals[:, 2] * np.cos(np.deg2rad(angles)), atol=1e-12)
+    assert np.abs(np.angle(np.exp(1j * (np.arctan2(along_parallel[:, 1], along_parallel[:, 0]) - longitude)))).max() > np.deg2rad(1.0)
+    with pytest.raises(ValueError, match="tilt direction"):
+        sensitivity.tilt_normals(normals, 3.0, np.random.default_rng(9), "sideways")

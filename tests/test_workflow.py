@@ -193,7 +193,7 @@ def test_small_run_table2_from_images_alone(small_run):
 def test_small_run_geometry_sensitivity(small_run):
     table = pd.read_csv(small_run / "results/tables/geometry_sensitivity.csv")
     assert (small_run / "results/plots/geometry_sensitivity.png").stat().st_size > 0
-    assert len(table) == 2 * (3 + 2)  # sets x (tilts 0, 2, 7 + the two samplings of the true surface)
+    assert len(table) == 2 * (3 + 2 + 2)  # sets x (tilts 0, 2, 7; latitude and longitude only; two samplings of the true surface)
     tilted = table[table.variant == "pure_pixels"].set_index(["set_id", "normal_error_deg"])
     for set_id in table.set_id.unique():
         exact, small, large = (tilted.loc[(set_id, tilt)] for tilt in (0.0, 2.0, 7.0))
@@ -201,6 +201,13 @@ def test_small_run_geometry_sensitivity(small_run):
         assert abs(small.normal_error_deg_median - 2.0) < 0.2 and abs(large.normal_error_deg_median - 7.0) < 0.7
         # Wrong normals bias k low, and more so the wronger they are.
         assert large.k_err < small.k_err < 0 and large.k_rmse > small.k_rmse > exact.k_rmse
+    # Views and Sun in the equatorial plane: a normal's latitude error is absorbed by its albedo,
+    # its longitude error is what biases k and the light.
+    split = table[table.variant.str.startswith("pure_pixels_")].set_index(["set_id", "variant"])
+    for set_id in table.set_id.unique():
+        latitude, longitude = split.loc[(set_id, "pure_pixels_latitude")], split.loc[(set_id, "pure_pixels_longitude")]
+        assert abs(latitude.k_err) < 0.01 * abs(longitude.k_err) and latitude.light_dir_err_deg < 0.1 * longitude.light_dir_err_deg
+        assert latitude.albedo_rmse > 0.005  # the albedo takes it all
     # The true surface sampled as the cloud is: bilinear samples straddle facet edges even with perfect
     # geometry (full run: per-point k RMSE 0.04 to 0.10); the image's own purity test gives Table 1's accuracy back.
     bilinear = table[table.variant == "bilinear"].set_index("set_id")

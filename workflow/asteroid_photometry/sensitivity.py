@@ -9,11 +9,18 @@ enters the estimate:
   brightness) with every point's normal tilted by a random angle of median
   ``normal_error_deg`` towards a random direction, as a reconstruction's
   normals would be; the estimator's errors against that angle.
+* ``pure_pixels_latitude`` and ``pure_pixels_longitude``: the same with
+  each normal tilted only along its meridian or only along its parallel
+  (``split_tilt_deg``). With the views and the Sun in the body's equatorial
+  plane, as here, a normal's latitude enters its brightness only through a
+  factor ``cos(lat)**(2k - 1)`` that the point's own albedo absorbs exactly:
+  latitude errors cost only albedo scatter, longitude errors bias k and the
+  light. Photometry, in turn, can refine only the longitude.
 * ``bilinear`` and ``image_purity``: every facet's centroid with its true
   normal, seen through the true cameras and sampled and scored as the cloud
-  is (``cloud.cloud_observations``, ``table2.plausible_points``): bilinearly wherever it projects, or only
-  where the image itself shows the sample pure (``cloud.sample_pure``, no
-  shape model needed to decide). What the sampling costs with perfect
+  is (``cloud.cloud_observations``, ``table2.plausible_points``): bilinearly
+  wherever it projects, or only where the image itself shows the sample
+  pure (``cloud.sample_pure``, no shape model needed to decide). What the sampling costs with perfect
   geometry, and whether the images alone can tell good samples from bad.
 """
 
@@ -26,9 +33,9 @@ import pandas as pd
 
 from . import cloud as cloud_lib
 from . import estimate, metrics
-from .metrics import TABLE2_BOUNDS
 from .cameras import Intrinsics
 from .experiment import ImageSet
+from .metrics import TABLE2_BOUNDS
 from .stages import load_observations, load_shape_npz, read_rendered_images, run_estimator, truth_from_arrays
 
 log = logging.getLogger(__name__)
@@ -37,26 +44,43 @@ MEDIAN_ABS_STANDARD_NORMAL = 0.6744897501960817
 COLUMNS = ["set_id", "variant", "normal_error_deg", "normal_error_deg_median", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse", "n_points", "n_obs"]
 
 
-def tilt_normals(normals: np.ndarray, median_deg: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals each tilted by ``|N(0, s)|`` degrees (median ``median_deg``) towards a uniformly random direction.
+TILT_DIRECTIONS = ("random", "latitude", "longitude")
 
-    Returns the tilted normals and the tilt angles in degrees. The same
-    generator state gives the same directions and relative angles for every
-    ``median_deg``, so a sweep over it varies the size of the error only.
+
+def _east_north(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit tangents of each normal towards increasing longitude and latitude about the body's spin axis (+z)."""
+    east = np.cross([0.0, 0.0, 1.0], normals)
+    length = np.linalg.norm(east, axis=1, keepdims=True)
+    east = np.where(length > 1e-9, east / np.maximum(length, 1e-300), [[1.0, 0.0, 0.0]])  # at a pole any tangent will do
+    return east, np.cross(normals, east)
+
+
+def tilt_normals(normals: np.ndarray, median_deg: float, rng: np.random.Generator, direction: str = "random") -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals each tilted by ``|N(0, s)|`` degrees (median ``median_deg``).
+
+    ``direction``: ``random`` tilts towards a uniformly random tangent
+    direction; ``latitude`` and ``longitude`` only along the meridian or
+    the parallel through the normal (body frame, spin axis +z), with a
+    random sign. Returns the tilted normals and the tilt angles in degrees.
+    The same generator state gives the same directions and relative angles
+    for every ``median_deg``, so a sweep over it varies the size only.
     """
+    if direction not in TILT_DIRECTIONS:
+        raise ValueError(f"tilt direction {direction!r}: expected one of {TILT_DIRECTIONS}")
     normals = np.asarray(normals, dtype=float)
-    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    first = np.cross(normals, helper)
-    first /= np.linalg.norm(first, axis=1, keepdims=True)
-    second = np.cross(normals, first)
+    east, north = _east_north(normals)
     azimuth = rng.uniform(0.0, 2.0 * np.pi, len(normals))
     angle = np.deg2rad(median_deg) / MEDIAN_ABS_STANDARD_NORMAL * np.abs(rng.standard_normal(len(normals)))
-    towards = np.cos(azimuth)[:, None] * first + np.sin(azimuth)[:, None] * second
+    if direction == "random":
+        towards = np.cos(azimuth)[:, None] * east + np.sin(azimuth)[:, None] * north
+    else:
+        sign = np.where(azimuth < np.pi, 1.0, -1.0)[:, None]
+        towards = sign * (north if direction == "latitude" else east)
     tilted = np.cos(angle)[:, None] * normals + np.sin(angle)[:, None] * towards
     return tilted, np.rad2deg(angle)
 
 
-def tilted_observations(arrays: dict, rotations: np.ndarray, median_deg: float, rng: np.random.Generator, min_cos_emission: float):
+def tilted_observations(arrays: dict, rotations: np.ndarray, median_deg: float, rng: np.random.Generator, min_cos_emission: float, direction: str = "random"):
     """Table 1's observations (``arrays``) with each point's normal tilted as ``tilt_normals`` does.
 
     ``rotations``: body-to-camera rotation of every image. Observations whose
@@ -69,7 +93,7 @@ def tilted_observations(arrays: dict, rotations: np.ndarray, median_deg: float, 
     normal_body = np.einsum("nji,nj->ni", rotation, arrays["normal_cam"])
     per_point = np.tile([0.0, 0.0, 1.0], (int(arrays["n_points"]), 1))  # points never observed keep a placeholder
     per_point[point_index] = normal_body
-    tilted, angle = tilt_normals(per_point, median_deg, rng)
+    tilted, angle = tilt_normals(per_point, median_deg, rng, direction)
     normal_cam = np.einsum("nij,nj->ni", rotation, tilted[point_index])
     keep = np.einsum("ij,ij->i", normal_cam, arrays["view_cam"]) >= min_cos_emission
     obs = estimate.Observations(
@@ -107,6 +131,11 @@ def sensitivity_set(observations_npz, render_dir, shape_npz, image_set: ImageSet
         obs, measured = tilted_observations(arrays, rotations, median_deg, np.random.default_rng(image_set.seed), observation_settings["min_cos_emission"])
         rows.append(_row(set_id, "pure_pixels", median_deg, measured, run_estimator(obs, method, image_set), truth))
         log.info("normals tilted by %.2f deg (median): %s", measured, rows[-1])
+    for direction in ("latitude", "longitude"):
+        median_deg = settings["split_tilt_deg"]
+        obs, measured = tilted_observations(arrays, rotations, median_deg, np.random.default_rng(image_set.seed), observation_settings["min_cos_emission"], direction)
+        rows.append(_row(set_id, f"pure_pixels_{direction}", median_deg, measured, run_estimator(obs, method, image_set), truth))
+        log.info("normals tilted in %s only by %.2f deg (median): %s", direction, measured, rows[-1])
 
     shape = load_shape_npz(shape_npz)
     vertices, faces = shape["vertices_m"], shape["faces"]
@@ -142,7 +171,8 @@ def sensitivity_markdown(table: pd.DataFrame, bounds: dict = TABLE2_BOUNDS) -> s
     lines = [
         "# What the estimator needs from the geometry",
         "",
-        "`pure_pixels`: Table 1's pure observations with every normal tilted at random (median tilt in the first column).",
+        "`pure_pixels`: Table 1's pure observations with every normal tilted at random (median tilt in the first column);",
+        "`pure_pixels_latitude`, `_longitude`: tilted along the meridian only, or along the parallel only.",
         "`bilinear`: every facet centroid with its true normal through the true cameras, sampled bilinearly as the cloud is.",
         "`image_purity`: the same, keeping only samples whose four bilinear pixels agree (decided from the image alone).",
         "",
