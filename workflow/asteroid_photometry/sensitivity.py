@@ -15,7 +15,8 @@ enters the estimate:
   plane, as here, a normal's latitude enters its brightness only through a
   factor ``cos(lat)**(2k - 1)`` that the point's own albedo absorbs exactly:
   latitude errors cost only albedo scatter, longitude errors bias k and the
-  light. Photometry, in turn, can refine only the longitude.
+  light. A photometric fit with a free albedo per point, in turn, can
+  refine only the longitude.
 * ``bilinear`` and ``image_purity``: every facet's centroid with its true
   normal, seen through the true cameras and sampled and scored as the cloud
   is (``cloud.cloud_observations``, ``table2.plausible_points``): bilinearly
