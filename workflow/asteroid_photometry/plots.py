@@ -158,7 +158,8 @@ def plot_table2_stages(table: pd.DataFrame, method: str, out_path) -> None:
 def plot_geometry_sensitivity(table: pd.DataFrame, out_path) -> None:
     """The estimator's errors against the median error of the normals it is given, one line per set.
 
-    Markers at zero normal error: the true surface sampled as the cloud is
+    Markers: the normals tilted along their meridian or their parallel only,
+    and, at zero normal error, the true surface sampled as the cloud is
     (bilinear) and with the image-only purity test. Dashed: Table 2's bounds.
     """
     tilted = table[table.variant == "pure_pixels"]
@@ -169,9 +170,14 @@ def plot_geometry_sensitivity(table: pd.DataFrame, out_path) -> None:
             ax.plot(group["normal_error_deg_median"], group[key].abs().clip(lower=1e-6), lw=0.8, alpha=0.5, color="tab:blue")
         median = tilted.groupby("normal_error_deg")[["normal_error_deg_median", key]].agg(lambda v: np.median(np.abs(v)))
         ax.plot(median["normal_error_deg_median"], median[key].clip(lower=1e-6), lw=2.0, color="tab:blue", marker="o", label="pure pixels, normals tilted (median of sets)")
-        for variant, marker, color in (("bilinear", "s", "tab:red"), ("image_purity", "^", "tab:green")):
-            values = table.loc[table.variant == variant, key].abs().clip(lower=1e-6)
-            ax.plot(np.zeros(len(values)), values, marker=marker, linestyle="none", color=color, alpha=0.6, label=f"true surface, {variant.replace('_', ' ')} samples")
+        for variant, marker, color, legend in (
+            ("pure_pixels_latitude", "v", "tab:purple", "pure pixels, normals tilted along the meridian only"),
+            ("pure_pixels_longitude", "D", "tab:orange", "pure pixels, normals tilted along the parallel only"),
+            ("bilinear", "s", "tab:red", "true surface, bilinear samples"),
+            ("image_purity", "^", "tab:green", "true surface, image purity samples"),
+        ):
+            rows = table[table.variant == variant]
+            ax.plot(rows["normal_error_deg_median"], rows[key].abs().clip(lower=1e-6), marker=marker, linestyle="none", color=color, alpha=0.6, label=legend)
         ax.axhline(TABLE2_BOUNDS[key], color="k", ls="--", lw=0.8, label="Table 2 bound")
         ax.set_yscale("log")
         ax.set_xlabel("median normal error (deg)")
