@@ -138,6 +138,32 @@ def sample_pure(image: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarr
     return np.where(pure, mean, 0.0)
 
 
+def default_occlusion_tolerance(points: np.ndarray) -> float:
+    """How far behind the occluding surface a point may lie and still count as seen: 2 % of the cloud's extent."""
+    return 0.02 * float(np.ptp(points, axis=0).max())
+
+
+def sample_images(points, image_index, body_to_camera: dict, intrinsics: Intrinsics, images: list[np.ndarray], purity_tolerance: float | None = None):
+    """Each point sampled in its image: (brightness, point in the camera frame, projection inside the image).
+
+    ``points`` (n, 3) in the cameras' frame, ``image_index`` (n,) the image of
+    each row. Bilinear samples, or with ``purity_tolerance`` only those
+    ``sample_pure`` finds pure (0 elsewhere, and outside the image).
+    """
+    poses = np.array([body_to_camera[i] for i in image_index]).reshape(-1, 4, 4)
+    points_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], points) + poses[:, :3, 3]
+    uv = project(points_cam, intrinsics)
+    inside = (uv[:, 0] >= 1) & (uv[:, 0] < intrinsics.width - 1) & (uv[:, 1] >= 1) & (uv[:, 1] < intrinsics.height - 1)
+    brightness = np.zeros(len(points))
+    for image in np.unique(image_index):
+        rows = np.flatnonzero((image_index == image) & inside)
+        if purity_tolerance is None:
+            brightness[rows] = sample_bilinear(images[image], uv[rows])
+        else:
+            brightness[rows] = sample_pure(images[image], uv[rows], purity_tolerance)
+    return brightness, points_cam, inside
+
+
 def cloud_observations(
     cloud: OrientedCloud, body_to_camera: dict, intrinsics: Intrinsics, images: list[np.ndarray], *,
     min_cos_emission: float = 0.1, min_observations: int = 4, occlusion_tolerance: float | None = None,
@@ -151,20 +177,10 @@ def cloud_observations(
     Poisson surface.
     """
     if occlusion_tolerance is None:
-        extent = np.ptp(cloud.points, axis=0).max()
-        occlusion_tolerance = 0.02 * extent
+        occlusion_tolerance = default_occlusion_tolerance(cloud.points)
     point_index, image_index = visible_pairs(cloud, body_to_camera, min_cos_emission, occlusion_tolerance, surface)
-    poses = np.array([body_to_camera[i] for i in image_index])
-    points_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.points[point_index]) + poses[:, :3, 3]
-    uv = project(points_cam, intrinsics)
-    inside = (uv[:, 0] >= 1) & (uv[:, 0] < intrinsics.width - 1) & (uv[:, 1] >= 1) & (uv[:, 1] < intrinsics.height - 1)
-    brightness = np.zeros(len(point_index))
-    for image in np.unique(image_index):
-        rows = np.flatnonzero((image_index == image) & inside)
-        if purity_tolerance is None:
-            brightness[rows] = sample_bilinear(images[image], uv[rows])
-        else:
-            brightness[rows] = sample_pure(images[image], uv[rows], purity_tolerance)
+    brightness, points_cam, inside = sample_images(cloud.points[point_index], image_index, body_to_camera, intrinsics, images, purity_tolerance)
+    poses = np.array([body_to_camera[i] for i in image_index]).reshape(-1, 4, 4)
     normal_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.normals[point_index])
     view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
     keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0)

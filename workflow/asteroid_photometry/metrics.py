@@ -171,6 +171,21 @@ def runtime_table(benchmark_paths) -> pd.DataFrame:
     return pd.concat([table, totals[["stage", "job", "seconds", "max_rss_mb"]]], ignore_index=True)
 
 
+def light_error_components_deg(light_est, light_true, spin_axis_cam) -> tuple[float, float]:
+    """The light's error split into (azimuth, elevation) about the body's spin axis, signed, degrees.
+
+    Elevation: the angle out of the plane normal to ``spin_axis_cam`` (the
+    plane of the views and the Sun in the default geometry); azimuth: the
+    turn about the axis, between the two lights' projections on that plane.
+    """
+    axis = np.asarray(spin_axis_cam, float) / np.linalg.norm(spin_axis_cam)
+    est, true = (np.asarray(v, float) / np.linalg.norm(v) for v in (light_est, light_true))
+    elevation = np.degrees(np.arcsin(np.clip(est @ axis, -1, 1)) - np.arcsin(np.clip(true @ axis, -1, 1)))
+    flat_est, flat_true = est - (est @ axis) * axis, true - (true @ axis) * axis
+    azimuth = np.degrees(np.arctan2(np.cross(flat_true, flat_est) @ axis, flat_true @ flat_est))
+    return float(azimuth), float(elevation)
+
+
 #: What issue 3 asks of the paper's estimator on the reconstructed cloud after refinement.
 TABLE2_BOUNDS = {"light_dir_err_deg": 0.5, "albedo_err": 0.01, "k_err": 0.01}
 

@@ -80,7 +80,7 @@ def plot_error_maps_on_body(centroids_m: np.ndarray, estimates: dict, title: str
         "k error": (estimates["minnaert_k"] - estimates["minnaert_k_true"])[fitted],
         "true albedo": estimates["albedo_true"][fitted],
     }
-    plot_values_on_body(centroids_m[fitted], values, title, out_path)
+    plot_values_on_body({name: (centroids_m[fitted], value) for name, value in values.items()}, title, out_path)
 
 
 def _scale_limit(values) -> float:
@@ -88,8 +88,10 @@ def _scale_limit(values) -> float:
     return max(float(np.percentile(values[np.isfinite(values)], 99)), 1e-12)
 
 
-def plot_values_on_body(points: np.ndarray, values: dict, title: str, out_path) -> None:
-    """Per-point values coloured on the body (body frame, m), one row each, seen from +z (pole) and from -y (side).
+def plot_values_on_body(values: dict, title: str, out_path) -> None:
+    """Per-point values coloured on the body, one row each, seen from +z (pole) and from -y (side).
+
+    ``values``: name -> (points (n, 3) in the body frame in m, values (n,)).
 
     Names ending in "error" get a diverging scale symmetric about 0, names
     ending in "error (deg)" a sequential one from 0; a row named "refined X"
@@ -99,9 +101,9 @@ def plot_values_on_body(points: np.ndarray, values: dict, title: str, out_path) 
     def quantity(name):
         return name.removeprefix("refined ")
 
-    limits = {quantity(name): _scale_limit([v for other, v in values.items() if quantity(other) == quantity(name)]) for name in values}
+    limits = {quantity(name): _scale_limit([v for other, (_, v) in values.items() if quantity(other) == quantity(name)]) for name in values}
     fig, axes = plt.subplots(len(values), 2, figsize=(11, 3.2 * len(values)), squeeze=False)
-    for row, (name, value) in enumerate(values.items()):
+    for row, (name, (points, value)) in enumerate(values.items()):
         finite = np.isfinite(value)
         limit = limits[quantity(name)]
         if name.endswith("error"):

@@ -1,13 +1,32 @@
-"""Photometric refinement of a reconstructed cloud's normals (Iwano's Eq. 7; the paper's future work).
+"""Photometric refinement of a reconstructed cloud (Iwano's Eq. 7; the paper's future work): positions and normals.
 
-A multi-view-stereo normal is a local plane fit through noisy points: a
-dozen degrees off on Itokawa. Each point is seen under many geometries, so
-its brightness constrains its normal as in photometric stereo: with the
-light direction fixed, every point's normal (two angles), albedo and k are
-fitted to its own observations by a Levenberg-Marquardt step per point,
-vectorised over all points (4x4 normal equations per point, solved in one
-batched call). The light direction is then re-estimated with the refined
-normals (the paper's joint fit), and the two steps alternate.
+A multi-view-stereo normal is a local plane fit through noisy points, a
+dozen degrees off on Itokawa, and a SIFT point sits where the image changes:
+on a facet's edge or corner, so its samples mix neighbouring facets in every
+image. Both spoil the estimator (the ``geometry_sensitivity`` study measures
+by how much). The refinement therefore moves the samples as well as the
+normals (:func:`refine_by_pure_samples`):
+
+1. candidate points are drawn uniformly on a surface through the cloud
+   (its Poisson surface), with that surface's normals;
+2. each candidate is slid along its normal over a few pixels' worth of
+   offsets, and at every offset sampled only where the image itself shows
+   the sample pure (``cloud.sample_pure``: the four pixels of a bilinear
+   sample agree), in every image that sees it;
+3. with at least ``min_observations`` pure samples, the candidate's normal,
+   albedo and k are fitted to them with the light fixed at the estimator's
+   value (a Levenberg-Marquardt step per point, vectorised over all points:
+   4x4 normal equations per point, solved in one batched call, with the
+   surface's normal as a Gaussian prior); the offset whose samples one
+   facet explains best (smallest relative RMS residual) is kept, and a
+   candidate is accepted when that residual is small: samples from two
+   facets do not fit one normal;
+4. the estimator runs again on the accepted points, with their fitted
+   normals and pure samples.
+
+With free albedo the brightness fixes only a normal's longitude (views and
+Sun in the equatorial plane: see the sensitivity study); its latitude stays
+near the surface's, which costs nothing (the albedo absorbs it).
 """
 
 from __future__ import annotations
@@ -17,20 +36,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .estimate import FitResult, Observations, fit_koizumi_lm
+from . import cloud as cloud_lib
+from .cameras import Intrinsics
+from .estimate import Observations
 
 log = logging.getLogger(__name__)
 
 COS_FLOOR = 1e-6
-
-
-@dataclass
-class RefinedFit:
-    fit: FitResult  # the final joint fit (light, albedo, k) with refined normals
-    normals: np.ndarray  # (n_points, 3) refined normals, reconstruction frame
-    refined: np.ndarray  # (n_points,) bool: points whose normal was refined
-    history: list  # per outer iteration: light direction and cost
-    observations: Observations  # the observations of the final fit
 
 
 def _tangent_basis(normals):
@@ -46,7 +58,7 @@ def _model(normals_obs, light_b, view_b, albedo_obs, k_obs):
     return albedo_obs * cos_i**k_obs * cos_o ** (k_obs - 1.0), cos_i, cos_o
 
 
-def refine_points(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam, *, n_iterations=15, min_observations=8, max_tilt_deg=45.0, normal_prior_deg=10.0, fit_albedo_k=True):
+def refine_points(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam, *, n_iterations=15, min_observations=8, max_tilt_deg=45.0, normal_prior_deg=10.0, fit_albedo_k=True, noise_var=None):
     """Per-point LM on (normal, albedo, k) with the light fixed; returns new arrays and the refined mask.
 
     ``rotations`` (n_obs, 3, 3) are the body-to-camera rotations of each
@@ -70,7 +82,8 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
     damping = np.full(n_points, 1e-3)
 
     f0, _, _ = _model(normals[p], light_b, view_b, albedo[p], minnaert_k[p])
-    noise_var = np.median((f0 - brightness) ** 2) / 0.455  # robust variance of the residuals
+    if noise_var is None:
+        noise_var = np.median((f0 - brightness) ** 2) / 0.455  # robust variance of the residuals
     prior_weight = noise_var / np.radians(normal_prior_deg) ** 2
 
     def costs(n, a, k):
@@ -126,35 +139,143 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
     return normals, albedo, minnaert_k, active
 
 
-def refine_cloud(obs: Observations, rotations: np.ndarray, normals: np.ndarray, initial: FitResult, *, n_outer: int = 2, **kwargs) -> RefinedFit:
-    """Refine the normals with the fitted parameters, then refit; ``n_outer`` times.
+def relative_residuals(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam) -> np.ndarray:
+    """Per point: RMS of (model - observed) over its observations, relative to its mean brightness (inf without any)."""
+    n_points = len(normals)
+    light_b = np.einsum("nji,j->ni", rotations, light_dir_cam)
+    view_b = np.einsum("nji,nj->ni", rotations, view_cam)
+    model, _, _ = _model(normals[point_index], light_b, view_b, albedo[point_index], minnaert_k[point_index])
+    counts = np.bincount(point_index, minlength=n_points)
+    squares = np.bincount(point_index, weights=(model - brightness) ** 2, minlength=n_points)
+    total = np.bincount(point_index, weights=brightness, minlength=n_points)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        residual = np.sqrt(squares / counts) / (total / counts)
+    return np.where(counts > 0, residual, np.inf)
 
-    As in Iwano's refinement, each point's normal is fitted to its own
-    brightness with the albedo and k held at the set's robust (median)
-    estimates and the light at its estimate; the paper's joint fit then
-    re-estimates light, albedo and k with the refined normals. Fitting the
-    albedo and k per point together with the normal was tried and rejected:
-    with brightness sampled a metre or two off the true surface it turns
-    normals to absorb the sampling errors (median normal error 12 -> 12
-    degrees, light error doubled), while the normals-only step halves the
-    normal error.
-    """
-    fit = initial
-    history = [{"light_dir_cam": fit.light_dir_cam.tolist(), "cost": fit.cost}]
-    refined = np.zeros(len(normals), bool)
-    for _ in range(n_outer):
-        fitted = np.isfinite(fit.albedo) & np.isfinite(fit.minnaert_k)
-        albedo = np.where(fitted, np.median(fit.albedo[fitted]), np.nan)
-        minnaert_k = np.where(fitted, np.median(fit.minnaert_k[fitted]), np.nan)
-        normals, _, _, refined = refine_points(
-            obs.point_index, rotations, obs.view_cam, obs.brightness, normals, albedo, minnaert_k, fit.light_dir_cam, fit_albedo_k=False, **kwargs
+
+@dataclass
+class PureSampleCloud:
+    """The refined cloud: accepted points with fitted normals and their pure samples."""
+
+    points: np.ndarray  # (M, 3) reconstruction frame, each at its chosen offset
+    normals: np.ndarray  # (M, 3) fitted normals, reconstruction frame
+    surface_normals: np.ndarray  # (M, 3) the surface's normals there, where the fit started
+    observations: Observations  # their pure samples (camera frames)
+    image_index: np.ndarray  # (n_obs,) the image of each observation
+    offset_px: np.ndarray  # (M,) chosen offset along the surface normal, in pixels
+    residual: np.ndarray  # (M,) relative RMS residual of the one-facet fit
+    n_candidates: int
+
+    def save(self, path, **extra) -> None:
+        """One .npz with the arrays (and ``extra`` ones)."""
+        obs = self.observations
+        np.savez_compressed(
+            path, points=self.points, normals=self.normals, surface_normals=self.surface_normals, point_index=obs.point_index,
+            normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness, image_index=self.image_index,
+            offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, **extra,
         )
-        normal_cam = np.einsum("nij,nj->ni", rotations, normals[obs.point_index])
-        # A refined normal may turn away from a camera that saw the point: that observation goes.
-        facing = np.einsum("ij,ij->i", normal_cam, obs.view_cam) > 0.05
-        rotations = rotations[facing]
-        obs = Observations(point_index=obs.point_index[facing], normal_cam=normal_cam[facing], view_cam=obs.view_cam[facing], brightness=obs.brightness[facing], n_points=obs.n_points)
-        fit = fit_koizumi_lm(obs, light_init=fit.light_dir_cam)
-        history.append({"light_dir_cam": fit.light_dir_cam.tolist(), "cost": fit.cost})
-        log.info("refinement: %d normals refined, cost %.4g", int(refined.sum()), fit.cost)
-    return RefinedFit(fit=fit, normals=normals, refined=refined, history=history, observations=obs)
+
+    @classmethod
+    def load(cls, path) -> "PureSampleCloud":
+        with np.load(path) as data:
+            observations = Observations(
+                point_index=data["point_index"], normal_cam=data["normal_cam"], view_cam=data["view_cam"], brightness=data["brightness"],
+                n_points=len(data["points"]),
+            )
+            return cls(
+                data["points"], data["normals"], data["surface_normals"], observations, data["image_index"], data["offset_px"], data["residual"],
+                int(data["n_candidates"]),
+            )
+
+
+def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg):
+    """One offset: pure samples of every candidate and the one-facet fit to them; (relative residual, fitted normals)."""
+    brightness, points_cam, inside = cloud_lib.sample_images(points[pair_point], pair_image, poses, intrinsics, images, purity_tolerance)
+    keep = inside & (brightness > 0)
+    counts = np.bincount(pair_point[keep], minlength=len(points))
+    keep &= counts[pair_point] >= min_observations
+    enough = counts >= min_observations
+    p = pair_point[keep]
+    rotations = np.array([poses[i][:3, :3] for i in pair_image[keep]]).reshape(-1, 3, 3)
+    view_cam = -points_cam[keep] / np.linalg.norm(points_cam[keep], axis=1, keepdims=True)
+    start_albedo = np.where(enough, albedo, np.nan)
+    start_k = np.where(enough, minnaert_k, np.nan)
+    # The samples' own scatter is the purity tolerance: the prior weighs against that, not against the starting misfit.
+    noise_var = (purity_tolerance * np.median(brightness[keep])) ** 2 if keep.any() else 1.0
+    fitted_normals, fitted_albedo, fitted_k, active = refine_points(
+        p, rotations, view_cam, brightness[keep], normals, start_albedo, start_k, light_dir_cam,
+        n_iterations=30, min_observations=min_observations, normal_prior_deg=normal_prior_deg, fit_albedo_k=True, noise_var=noise_var,
+    )
+    residual = relative_residuals(p, rotations, view_cam, brightness[keep], fitted_normals, fitted_albedo, fitted_k, light_dir_cam)
+    residual[~active] = np.inf
+    return residual, fitted_normals
+
+
+def refine_by_pure_samples(
+    surface, poses: dict, intrinsics: Intrinsics, images: list[np.ndarray], light_dir_cam, albedo: float, minnaert_k: float, *,
+    n_candidates: int = 60000, max_offset_px: float = 2.0, offset_steps: int = 11, purity_tolerance: float = 1e-3,
+    max_residual: float = 1e-3, min_observations: int = 6, min_cos_emission: float = 0.2, normal_prior_deg: float = 30.0, seed: int = 0,
+) -> PureSampleCloud:
+    """Points on ``surface`` moved and turned until their samples are pure and one facet explains them (module docstring).
+
+    ``surface``: (vertices, triangles) in the reconstruction frame, the frame
+    of ``poses`` (body-to-camera matrices by image index). ``light_dir_cam``,
+    ``albedo`` and ``minnaert_k``: the estimator's light and the set's
+    typical albedo and k, the starting point of each one-facet fit. Offsets
+    are in pixels (the candidate's footprint in the images that see it), so
+    the search is the same in any similarity frame.
+    """
+    import open3d as o3d
+
+    vertices, triangles = surface
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
+    mesh.compute_vertex_normals()
+    o3d.utility.random.seed(seed)
+    sampled = mesh.sample_points_uniformly(number_of_points=n_candidates)
+    points = np.asarray(sampled.points)
+    normals = np.asarray(sampled.normals)
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    candidates = cloud_lib.OrientedCloud(points, normals, np.zeros(len(points), int))
+    pair_point, pair_image = cloud_lib.visible_pairs(candidates, poses, min_cos_emission, cloud_lib.default_occlusion_tolerance(points), surface)
+    # A candidate's footprint: its mean depth over the cameras that see it, over the focal length.
+    pair_poses = np.array([poses[i] for i in pair_image]).reshape(-1, 4, 4)
+    depth = np.einsum("nj,nj->n", pair_poses[:, 2, :3], points[pair_point]) + pair_poses[:, 2, 3]
+    counts = np.bincount(pair_point, minlength=len(points))
+    footprint = np.bincount(pair_point, weights=depth, minlength=len(points)) / np.maximum(counts, 1) / intrinsics.focal_px
+
+    best_residual = np.full(len(points), np.inf)
+    best_offset = np.zeros(len(points))
+    best_normals = normals.copy()
+    for offset_px in np.linspace(-max_offset_px, max_offset_px, offset_steps) if offset_steps > 1 else [0.0]:
+        shifted = points + (offset_px * footprint)[:, None] * normals
+        residual, fitted_normals = _fit_candidates(
+            shifted, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k,
+            purity_tolerance, min_observations, normal_prior_deg,
+        )
+        better = residual < best_residual
+        best_residual[better], best_offset[better], best_normals[better] = residual[better], offset_px, fitted_normals[better]
+    accepted = np.flatnonzero(best_residual <= max_residual)
+    log.info(
+        "pure-sample refinement: %d candidates, %d with >= %d pure samples at some offset, %d accepted (relative residual <= %g)",
+        len(points), int(np.isfinite(best_residual).sum()), min_observations, len(accepted), max_residual,
+    )
+    surface_normals = normals[accepted]
+    points = points[accepted] + (best_offset[accepted] * footprint[accepted])[:, None] * surface_normals
+    normals = best_normals[accepted]
+    in_accepted = np.full(len(candidates.points), -1)
+    in_accepted[accepted] = np.arange(len(accepted))
+    rows = in_accepted[pair_point] >= 0
+    point_index, image_index = in_accepted[pair_point[rows]], pair_image[rows]
+    brightness, points_cam, inside = cloud_lib.sample_images(points[point_index], image_index, poses, intrinsics, images, purity_tolerance)
+    rotations = np.array([poses[i][:3, :3] for i in image_index]).reshape(-1, 3, 3)
+    normal_cam = np.einsum("nij,nj->ni", rotations, normals[point_index])
+    view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
+    # The fitted normal may turn away from a camera that saw the surface's: that sample goes.
+    keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0.05)
+    counts = np.bincount(point_index[keep], minlength=len(points))
+    keep &= counts[point_index] >= min_observations
+    observations = Observations(
+        point_index=point_index[keep], normal_cam=normal_cam[keep], view_cam=view_cam[keep], brightness=brightness[keep], n_points=len(points),
+    )
+    return PureSampleCloud(points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points))
+

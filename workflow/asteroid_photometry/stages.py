@@ -330,9 +330,10 @@ def write_table2_plots(table_csv, cloud_errors_npz, method: str, title: str, out
 
     plots.plot_table2_stages(pd.read_csv(table_csv), method, out_stages_png)
     with np.load(cloud_errors_npz) as data:
+        # The refinement moves the samples: the refined errors belong to other points.
+        before, after = data["points_body"], data["points_body_refined"]
         values = {
-            "k error": data["k_error"], "refined k error": data["k_error_refined"],
-            "normal error (deg)": data["normal_error_deg"], "refined normal error (deg)": data["normal_error_deg_refined"],
+            "k error": (before, data["k_error"]), "refined k error": (after, data["k_error_refined"]),
+            "normal error (deg)": (before, data["normal_error_deg"]), "refined normal error (deg)": (after, data["normal_error_deg_refined"]),
         }
-        points = data["points_body"]
-    plots.plot_values_on_body(points, values, title, out_cloud_png)
+    plots.plot_values_on_body(values, title, out_cloud_png)

@@ -106,6 +106,48 @@ def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_j
     log.info("registration and quality: %s", summary)
 
 
+def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dict, out_npz) -> None:
+    """The photometric refinement of one reconstruction (``refine.refine_by_pure_samples``), from images and cloud alone.
+
+    The light it holds fixed, and the albedo and k it starts from, are the
+    paper's estimator's on the cloud's bilinear samples. Only the cloud's
+    points and normals are read from the registration file: its transform
+    to the shape model is not used.
+    """
+    recon = reconstruct.SparseReconstruction.read(reconstruction_dir)
+    with np.load(registration_npz) as data:
+        oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+    _, images = read_rendered_images(render_dir)
+    poses = recon.body_to_camera()
+    surface = cloud_lib.poisson_surface(oriented)
+    obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
+    start = estimate.fit_koizumi_lm(obs)
+    fitted = np.isfinite(start.albedo) & np.isfinite(start.minnaert_k)
+    albedo, minnaert_k = float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
+    pure = refine.refine_by_pure_samples(
+        surface, poses, recon.intrinsics(), images, start.light_dir_cam, albedo, minnaert_k,
+        n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"], offset_steps=settings["refine_offset_steps"],
+        purity_tolerance=settings["refine_purity_tolerance"], max_residual=settings["refine_max_residual"],
+        min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
+    )
+    if pure.observations.n_obs < 10 * settings["min_observations_per_point"]:
+        raise RuntimeError(
+            f"{reconstruction_dir}: the refinement kept {len(pure.points)} of {pure.n_candidates} candidate points "
+            f"({pure.observations.n_obs} pure samples); too few to fit. Raise reconstruction.refine_candidates, "
+            f"reconstruction.refine_purity_tolerance or reconstruction.refine_max_residual"
+        )
+    pure.save(out_npz, light_dir_cam=start.light_dir_cam, albedo_start=albedo, minnaert_k_start=minnaert_k)
+    log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
+
+
+def cloud_observations_of(oriented, recon, images, settings: dict, surface=None):
+    """``cloud.cloud_observations`` of a reconstruction's cloud with the config's settings."""
+    return cloud_lib.cloud_observations(
+        oriented, recon.body_to_camera(), recon.intrinsics(), images, min_cos_emission=settings["min_cos_emission"],
+        min_observations=settings["min_observations_per_point"], purity_tolerance=settings.get("purity_tolerance"), surface=surface,
+    )
+
+
 def truth_for_facets(facets, shape: dict, frames: dict, render_dir):
     """Per-point true albedo, k and normal of the given facets of the shape model, and the true light."""
     maps_path = Path(render_dir) / FACET_MAPS_FILE
@@ -192,24 +234,21 @@ def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: m
     return row
 
 
-def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, method: str, set_id: str, priors: str, settings: dict, out_json, out_npz) -> None:
-    """Both steps on the reconstructed cloud: the estimator, then photometric refinement and the estimator again."""
+def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method: str, set_id: str, priors: str, settings: dict, out_json, out_npz) -> None:
+    """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``); scored against the shape model."""
     recon = reconstruct.SparseReconstruction.read(reconstruction_dir)
     shape = load_shape_npz(shape_npz)
     with np.load(registration_npz) as data:
         oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
         transform = data["transform"]
     frames, images = read_rendered_images(render_dir)
-    poses = recon.body_to_camera()
-    obs, image_index = cloud_lib.cloud_observations(
-        oriented, poses, recon.intrinsics(), images, min_cos_emission=settings["min_cos_emission"], min_observations=settings["min_observations_per_point"],
-        purity_tolerance=settings.get("purity_tolerance"),
-    )
-    rotations = np.array([poses[i][:3, :3] for i in image_index])
+    obs, _ = cloud_observations_of(oriented, recon, images, settings)
+    query = register.SurfaceQuery(shape["vertices_m"], shape["faces"])
     points_body = register.transform_points(transform, oriented.points)
-    surface_body, facets = register.SurfaceQuery(shape["vertices_m"], shape["faces"]).closest(points_body)
+    surface_body, facets = query.closest(points_body)
     albedo_true, k_true, normals_true, light_true = truth_for_facets(facets, shape, frames, render_dir)
     truth = metrics.Truth(light_dir_cam=light_true, albedo=albedo_true, minnaert_k=k_true)
+    spin_axis_cam = np.asarray(frames["images"][0]["body_to_camera"], dtype=float)[:3, :3] @ [0.0, 0.0, 1.0]
 
     known_k = float(np.median(k_true))  # Iwano's baseline is given k
     report = json.loads((Path(reconstruction_dir) / "report.json").read_text())
@@ -218,24 +257,38 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
             f"set {set_id}, priors {priors}: the reconstruction ({report['n_images_registered']} of {report['n_images']} images, "
             f"{len(oriented.points)} cloud points) gives only {obs.n_obs} usable observations; nothing to fit"
         )
-    before = _run(method, obs, known_k)
-    scored = plausible_points(before)
-    row = metrics.summary_row(set_id, scored, truth)
+    before = plausible_points(_run(method, obs, known_k))
+    row = metrics.summary_row(set_id, before, truth)
+
+    # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
+    pure = refine.PureSampleCloud.load(refined_npz)
+    with np.load(refined_npz) as data:
+        refine_light = data["light_dir_cam"]
     tick = time.perf_counter()
-    joint = before if method == "koizumi_lm" else estimate.fit_koizumi_lm(obs)
-    refined = refine.refine_cloud(obs, rotations, oriented.normals, joint, n_outer=settings["refine_iterations"])
-    after = refined.fit if method == "koizumi_lm" else _run(method, refined.observations, known_k)
-    refine_seconds = time.perf_counter() - tick
-    before, after = scored, plausible_points(after)
-    after_row = metrics.summary_row(set_id, after, truth)
+    if method == "koizumi_lm":
+        after = estimate.fit_koizumi_lm(pure.observations, light_init=refine_light)
+    else:
+        after = _run(method, pure.observations, known_k)
+    refit_seconds = time.perf_counter() - tick
+    after = plausible_points(after)
+    refined_body = register.transform_points(transform, pure.points)
+    refined_surface, refined_facets = query.closest(refined_body)
+    albedo_true_refined, k_true_refined, normals_true_refined, _ = truth_for_facets(refined_facets, shape, frames, render_dir)
+    after_row = metrics.summary_row(set_id, after, metrics.Truth(light_dir_cam=light_true, albedo=albedo_true_refined, minnaert_k=k_true_refined))
     normals_before = quality.normal_errors_deg(register.transform_normals(transform, oriented.normals), normals_true)
-    normals_after = quality.normal_errors_deg(register.transform_normals(transform, refined.normals), normals_true)
-    row.update({f"{key}_refined": after_row[key] for key in ("light_deg_est", "light_deg_err", "light_dir_err_deg", "albedo_est", "albedo_err", "albedo_rmse", "k_est", "k_err", "k_rmse", "n_points")})
+    normals_after = quality.normal_errors_deg(register.transform_normals(transform, pure.normals), normals_true_refined)
+    row.update({f"{key}_refined": after_row[key] for key in ("light_deg_est", "light_deg_err", "light_dir_err_deg", "albedo_est", "albedo_err", "albedo_rmse", "k_est", "k_err", "k_rmse", "n_points", "n_obs")})
+    for suffix, result in (("", before), ("_refined", after)):
+        azimuth, elevation = metrics.light_error_components_deg(result.light_dir_cam, light_true, spin_axis_cam)
+        row[f"light_err_azimuth_deg{suffix}"], row[f"light_err_elevation_deg{suffix}"] = azimuth, elevation
     row.update(
         priors=priors,
         normal_err_deg_median=float(np.nanmedian(normals_before)),
         normal_err_deg_median_refined=float(np.nanmedian(normals_after)),
-        refine_seconds=refine_seconds,
+        refit_seconds=refit_seconds,
+        refine_candidates=pure.n_candidates,
+        refine_accepted=int(len(pure.points)),
+        refine_distance_m_median=float(np.median(np.linalg.norm(refined_surface - refined_body, axis=1))),
     )
     row.update(
         n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"],
@@ -247,8 +300,9 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
     Path(out_json).write_text(json.dumps(row, indent=1))
     np.savez_compressed(
         out_npz, points_body=points_body, albedo_error=before.albedo - albedo_true, k_error=before.minnaert_k - k_true,
-        albedo_error_refined=after.albedo - albedo_true, k_error_refined=after.minnaert_k - k_true,
-        normal_error_deg=normals_before, normal_error_deg_refined=normals_after,
+        normal_error_deg=normals_before, points_body_refined=refined_body,
+        albedo_error_refined=after.albedo - albedo_true_refined, k_error_refined=after.minnaert_k - k_true_refined,
+        normal_error_deg_refined=normals_after,
     )
     log.info("table 2 row: %s", json.dumps(row))
 

@@ -27,6 +27,24 @@ PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["pr
 MONTE_CARLO_SETS = BASE_SETS if config["noise_monte_carlo"]["realisations"] > 0 and config["noise_levels"] else []
 # The geometry sensitivity study explains Table 2: it runs with it.
 SENSITIVITY_SETS = BASE_SETS if config["geometry_sensitivity"]["enabled"] and PRIOR_SETTINGS else []
+# The reconstruction keys each Table 2 stage reads: a change to one leaves the
+# outputs of the stages that do not read it standing (Snakemake reruns a job
+# when its params change).
+RECONSTRUCTION_KEYS = {
+    "reconstruct": ["intrinsics", "camera_position_sigma_m", "tie_point_sigma_px", "prior_seed", "min_pose_inliers", "min_pose_inlier_ratio", "min_track"],
+    "register": ["min_track"],
+    "cloud": ["min_observations_per_point", "min_cos_emission", "purity_tolerance"],
+    "refine": [
+        "min_observations_per_point", "min_cos_emission", "purity_tolerance", "refine_candidates", "refine_max_offset_px",
+        "refine_offset_steps", "refine_purity_tolerance", "refine_max_residual",
+    ],
+}
+
+
+def reconstruction_settings(stage):
+    return {key: config["reconstruction"][key] for key in RECONSTRUCTION_KEYS[stage]}
+
+
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
 ESTIMATORS = config["estimators"]
 # Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.

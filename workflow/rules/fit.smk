@@ -55,7 +55,7 @@ rule geometry_sensitivity:
         image_set=image_set,
         settings=config["geometry_sensitivity"],
         observations=config["observations"],
-        cloud=config["reconstruction"],
+        cloud=reconstruction_settings("cloud"),
     threads: 1
     log:
         "logs/geometry_sensitivity/{set_id}.log",

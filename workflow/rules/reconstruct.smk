@@ -9,7 +9,7 @@ rule reconstruct:
         model=directory("results/reconstruction/{set_id}/priors-{priors}"),
     params:
         use_priors=lambda wildcards: wildcards.priors == "on",
-        settings=config["reconstruction"],
+        settings=reconstruction_settings("reconstruct"),
     threads: 2
     log:
         "logs/reconstruct/{set_id}/priors-{priors}.log",
@@ -29,7 +29,7 @@ rule register_cloud:
         npz="results/registration/{set_id}/priors-{priors}.npz",
         summary="results/registration/{set_id}/priors-{priors}.json",
     params:
-        settings=config["reconstruction"],
+        settings=reconstruction_settings("register"),
     log:
         "logs/register_cloud/{set_id}/priors-{priors}.log",
     benchmark:
@@ -40,6 +40,25 @@ rule register_cloud:
         "../scripts/register_cloud.py"
 
 
+rule refine_cloud:
+    input:
+        registration=rules.register_cloud.output.npz,
+        model=rules.reconstruct.output.model,
+        images="results/render/{set_id}",
+    output:
+        npz="results/refined_cloud/{set_id}/priors-{priors}.npz",
+    params:
+        settings=reconstruction_settings("refine"),
+    log:
+        "logs/refine_cloud/{set_id}/priors-{priors}.log",
+    benchmark:
+        "benchmarks/refine_cloud/{set_id}/priors-{priors}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/refine_cloud.py"
+
+
 rule fit_cloud:
     input:
         registration=rules.register_cloud.output.npz,
@@ -47,11 +66,12 @@ rule fit_cloud:
         model=rules.reconstruct.output.model,
         images="results/render/{set_id}",
         shape=rules.prepare_shape.output.npz,
+        refined=rules.refine_cloud.output.npz,
     output:
         summary="results/fits_cloud/{set_id}/priors-{priors}/{method}.json",
         errors="results/fits_cloud/{set_id}/priors-{priors}/{method}.npz",
     params:
-        settings=config["reconstruction"],
+        settings=reconstruction_settings("cloud"),
     log:
         "logs/fit_cloud/{set_id}/priors-{priors}/{method}.log",
     benchmark:

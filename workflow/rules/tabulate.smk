@@ -45,6 +45,7 @@ rule tabulate_runtime:
             *expand("benchmarks/geometry_sensitivity/{set_id}.tsv", set_id=SENSITIVITY_SETS),
             *expand("benchmarks/reconstruct/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand("benchmarks/register_cloud/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
+            *expand("benchmarks/refine_cloud/{set_id}/priors-{priors}.tsv", set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(
                 "benchmarks/fit_cloud/{set_id}/priors-{priors}/{method}.tsv",
                 set_id=BASE_SETS,

@@ -11,6 +11,7 @@ fit_cloud_stage(
     snakemake.input.model,  # noqa: F821
     snakemake.input.images,  # noqa: F821
     snakemake.input.shape,  # noqa: F821
+    snakemake.input.refined,  # noqa: F821
     snakemake.wildcards.method,  # noqa: F821
     snakemake.wildcards.set_id,  # noqa: F821
     snakemake.wildcards.priors,  # noqa: F821
