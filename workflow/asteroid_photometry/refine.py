@@ -24,9 +24,19 @@ normals (:func:`refine_by_pure_samples`):
 4. the estimator runs again on the accepted points, with their fitted
    normals and pure samples.
 
-With free albedo the brightness fixes only a normal's longitude (views and
-Sun in the equatorial plane: see the sensitivity study); its latitude stays
-near the surface's, which costs nothing (the albedo absorbs it).
+The normal only turns about the body's spin axis (the normal of the plane
+of the camera centres, ``spin_axis``): seen from a ring of views with the
+Sun in its plane, a point's brightness fixes its normal's longitude, while
+a latitude error only scales the brightness by ``cos(lat)^(2k - 1)``, which
+the point's albedo absorbs. Left free, the latitude wanders with whatever
+the light's elevation is (flattened on one run, -0.008 in the mean albedo);
+held at the surface's, it costs only albedo scatter.
+
+What the refinement cannot do is correct the light: normals fitted under a
+light that is a degree off explain the pure samples as well as the true
+ones (a common turn of normals and light costs only the weak
+``cos_o^(k - 1)`` factor, and the light's elevation trades against the
+latitudes), so the refit keeps the light it started from.
 """
 
 from __future__ import annotations
@@ -52,13 +62,27 @@ def _tangent_basis(normals):
     return e1, np.cross(normals, e1)
 
 
+def _turn(normals, axis, angle):
+    """``normals`` turned about ``axis`` (unit) by ``angle`` (rad, one per row): Rodrigues' formula."""
+    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    along = (normals @ axis)[:, None] * axis
+    return normals * cos + np.cross(axis, normals) * sin + along * (1.0 - cos)
+
+
+def spin_axis(camera_centres) -> np.ndarray:
+    """The axis the body turns about, from the cameras alone: the normal of the best plane through their centres (unit, sign arbitrary)."""
+    centres = np.asarray(camera_centres, dtype=float)
+    _, _, vt = np.linalg.svd(centres - centres.mean(axis=0))
+    return vt[2]
+
+
 def _model(normals_obs, light_b, view_b, albedo_obs, k_obs):
     cos_i = np.maximum(np.einsum("ij,ij->i", normals_obs, light_b), COS_FLOOR)
     cos_o = np.maximum(np.einsum("ij,ij->i", normals_obs, view_b), COS_FLOOR)
     return albedo_obs * cos_i**k_obs * cos_o ** (k_obs - 1.0), cos_i, cos_o
 
 
-def refine_points(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam, *, n_iterations=15, min_observations=8, max_tilt_deg=45.0, normal_prior_deg=10.0, fit_albedo_k=True, noise_var=None):
+def refine_points(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam, *, n_iterations=15, min_observations=8, max_tilt_deg=45.0, normal_prior_deg=10.0, fit_albedo_k=True, noise_var=None, axis=None):
     """Per-point LM on (normal, albedo, k) with the light fixed; returns new arrays and the refined mask.
 
     ``rotations`` (n_obs, 3, 3) are the body-to-camera rotations of each
@@ -66,7 +90,8 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
     The starting normal acts as a Gaussian prior of ``normal_prior_deg`` per
     axis, weighed against the brightness residuals' own scatter (a MAP
     estimate: brightness errors from mispositioned samples otherwise tilt
-    normals freely); a normal may turn at most ``max_tilt_deg``.
+    normals freely); a normal may turn at most ``max_tilt_deg``. With an
+    ``axis`` a normal only turns about it (its latitude about the axis stays).
     """
     n_points = len(normals)
     counts = np.bincount(point_index, minlength=n_points)
@@ -93,7 +118,10 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
 
     cost = costs(normals, albedo, minnaert_k)
     for _ in range(n_iterations):
-        e1, e2 = _tangent_basis(normals)
+        if axis is None:
+            e1, e2 = _tangent_basis(normals)
+        else:  # the derivative of a turn about the axis; no second direction
+            e1, e2 = np.cross(axis, normals), np.zeros_like(normals)
         f, cos_i, cos_o = _model(normals[p], light_b, view_b, albedo[p], minnaert_k[p])
         k = minnaert_k[p]
         d_normal = f[:, None] * (k[:, None] / cos_i[:, None] * light_b + (k[:, None] - 1.0) / cos_o[:, None] * view_b)
@@ -114,10 +142,14 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
         offset = normals - start
         jtr[:, 0] += prior_weight * np.einsum("ij,ij->i", offset, e1)
         jtr[:, 1] += prior_weight * np.einsum("ij,ij->i", offset, e2)
-        jtj[:, 0, 0] += prior_weight
-        jtj[:, 1, 1] += prior_weight
+        jtj[:, 0, 0] += prior_weight * np.einsum("ij,ij->i", e1, e1)
+        jtj[:, 1, 1] += prior_weight * np.einsum("ij,ij->i", e2, e2)
         diag = np.einsum("nii->ni", jtj)
         system = jtj + (damping[:, None] * np.maximum(diag, 1e-12))[:, :, None] * np.eye(4)
+        if axis is not None:  # one angle: the second normal row is frozen
+            system[:, 1, :] = system[:, :, 1] = 0.0
+            system[:, 1, 1] = 1.0
+            jtr[:, 1] = 0.0
         if not fit_albedo_k:  # normals only: the albedo and k rows are frozen
             system[:, 2:, :] = 0.0
             system[:, :, 2:] = 0.0
@@ -126,8 +158,11 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
         system[~active] = np.eye(4)
         step = -np.linalg.solve(system, jtr[:, :, None])[:, :, 0]
         step[~active] = 0.0
-        trial_normals = normals + step[:, [0]] * e1 + step[:, [1]] * e2
-        trial_normals /= np.linalg.norm(trial_normals, axis=1, keepdims=True)
+        if axis is None:
+            trial_normals = normals + step[:, [0]] * e1 + step[:, [1]] * e2
+            trial_normals /= np.linalg.norm(trial_normals, axis=1, keepdims=True)
+        else:
+            trial_normals = _turn(normals, axis, step[:, 0])
         trial_albedo = np.maximum(albedo + step[:, 2], 1e-4)
         trial_k = np.clip(minnaert_k + step[:, 3], 0.05, 2.0)
         tilt_ok = np.einsum("ij,ij->i", trial_normals, start) >= np.cos(np.radians(max_tilt_deg))
@@ -188,7 +223,7 @@ class PureSampleCloud:
             )
 
 
-def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg):
+def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg, axis):
     """One offset: pure samples of every candidate and the one-facet fit to them; (relative residual, fitted normals)."""
     brightness, points_cam, inside = cloud_lib.sample_images(points[pair_point], pair_image, poses, intrinsics, images, purity_tolerance)
     keep = inside & (brightness > 0)
@@ -204,7 +239,7 @@ def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, 
     noise_var = (purity_tolerance * np.median(brightness[keep])) ** 2 if keep.any() else 1.0
     fitted_normals, fitted_albedo, fitted_k, active = refine_points(
         p, rotations, view_cam, brightness[keep], normals, start_albedo, start_k, light_dir_cam,
-        n_iterations=30, min_observations=min_observations, normal_prior_deg=normal_prior_deg, fit_albedo_k=True, noise_var=noise_var,
+        n_iterations=30, min_observations=min_observations, normal_prior_deg=normal_prior_deg, fit_albedo_k=True, noise_var=noise_var, axis=axis,
     )
     residual = relative_residuals(p, rotations, view_cam, brightness[keep], fitted_normals, fitted_albedo, fitted_k, light_dir_cam)
     residual[~active] = np.inf
@@ -214,7 +249,7 @@ def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, 
 def refine_by_pure_samples(
     surface, poses: dict, intrinsics: Intrinsics, images: list[np.ndarray], light_dir_cam, albedo: float, minnaert_k: float, *,
     n_candidates: int = 60000, max_offset_px: float = 2.0, offset_steps: int = 11, purity_tolerance: float = 1e-3,
-    max_residual: float = 1e-3, min_observations: int = 6, min_cos_emission: float = 0.2, normal_prior_deg: float = 30.0, seed: int = 0,
+    max_residual: float = 1e-3, min_observations: int = 6, min_cos_emission: float = 0.2, normal_prior_deg: float = 30.0, seed: int = 0, axis=None,
 ) -> PureSampleCloud:
     """Points on ``surface`` moved and turned until their samples are pure and one facet explains them (module docstring).
 
@@ -223,7 +258,8 @@ def refine_by_pure_samples(
     ``albedo`` and ``minnaert_k``: the estimator's light and the set's
     typical albedo and k, the starting point of each one-facet fit. Offsets
     are in pixels (the candidate's footprint in the images that see it), so
-    the search is the same in any similarity frame.
+    the search is the same in any similarity frame. ``axis``: the spin axis
+    the normals turn about (``spin_axis``); None lets them tilt freely.
     """
     import open3d as o3d
 
@@ -250,7 +286,7 @@ def refine_by_pure_samples(
         shifted = points + (offset_px * footprint)[:, None] * normals
         residual, fitted_normals = _fit_candidates(
             shifted, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k,
-            purity_tolerance, min_observations, normal_prior_deg,
+            purity_tolerance, min_observations, normal_prior_deg, axis,
         )
         better = residual < best_residual
         best_residual[better], best_offset[better], best_normals[better] = residual[better], offset_px, fitted_normals[better]

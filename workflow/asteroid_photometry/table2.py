@@ -129,6 +129,7 @@ def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dic
         n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"], offset_steps=settings["refine_offset_steps"],
         purity_tolerance=settings["refine_purity_tolerance"], max_residual=settings["refine_max_residual"],
         min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
+        axis=refine.spin_axis(list(recon.camera_centres().values())),
     )
     if pure.observations.n_obs < 10 * settings["min_observations_per_point"]:
         raise RuntimeError(
