@@ -324,7 +324,8 @@ def table2_markdown(table: pd.DataFrame) -> str:
     lines = [
         "# Table 2: from images alone", "",
         "Sparse pycolmap reconstruction of each set (with and without navigation position priors), an oriented cloud "
-        "with visibility, the estimators, then photometric refinement of the normals. Scored against the shape model "
+        "with visibility, the estimators, then the photometric refinement (points moved to where the images show their "
+        "samples pure, normals turned about the spin axis to fit them) and the estimators again. Scored against the shape model "
         "after registration. The paper's Table 2 (real Hayabusa images, Bundler + PMVS2): light "
         f"{paper['light_deg_est']} deg (reference about 0), albedo {paper['albedo_est']} (reference {paper['albedo_true']}), "
         f"k {paper['k_est']} (reference about {paper['k_true']}).", "",
@@ -333,7 +334,8 @@ def table2_markdown(table: pd.DataFrame) -> str:
         ("set_id", "set", None), ("n_images_registered", "images", None), ("reproj_rms_px", "reproj px", 2),
         ("cam_pos_rms_m", "cam-prior m", 2), ("prior_overfit", "overfit", None), ("registration_ok", "reg ok", None),
         ("registration_rms_rel", "reg RMS rel", 4), ("accuracy_rel_median", "acc rel", 4), ("completeness", "compl.", 3),
-        ("n_points", "points", None), ("light_dir_err_deg", "light err", 3), ("light_dir_err_deg_refined", "light err ref.", 3),
+        ("n_points", "points", None), ("n_points_refined", "points ref.", None), ("light_dir_err_deg", "light err", 3),
+        ("light_dir_err_deg_refined", "light err ref.", 3), ("light_err_elevation_deg_refined", "of it elev. ref.", 3),
         ("albedo_err", "albedo err", 4), ("albedo_err_refined", "albedo err ref.", 4), ("k_err", "k err", 4),
         ("k_err_refined", "k err ref.", 4), ("normal_err_deg_median", "normal err", 1), ("normal_err_deg_median_refined", "normal err ref.", 1),
     ]
