@@ -178,3 +178,12 @@ def test_refinement_needs_pure_samples(faceted_ball):
     noisy = [image * (1 + 0.05 * rng.standard_normal(image.shape)) for image in images]
     pure = refine.refine_by_pure_samples(surface, poses, INTRINSICS, noisy, LIGHT_CAM, albedo=0.5, minnaert_k=1.0, n_candidates=2000, min_observations=5)
     assert len(pure.points) == 0 and pure.observations.n_obs == 0
+
+
+def test_refined_cloud_round_trips_through_its_file(refined, tmp_path):
+    refined.save(tmp_path / "refined.npz")
+    again = refine.PureSampleCloud.load(tmp_path / "refined.npz")
+    np.testing.assert_array_equal(again.points, refined.points)
+    np.testing.assert_array_equal(again.observations.brightness, refined.observations.brightness)
+    np.testing.assert_array_equal(again.light_dir_cam, LIGHT_CAM)
+    assert again.n_candidates == refined.n_candidates and again.observations.n_points == len(refined.points)

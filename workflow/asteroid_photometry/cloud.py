@@ -138,6 +138,15 @@ def sample_pure(image: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarr
     return np.where(pure, mean, 0.0)
 
 
+def poses_of(body_to_camera: dict, image_index) -> np.ndarray:
+    """The body-to-camera matrix of every row's image, (n, 4, 4): one table lookup, no loop over rows."""
+    image_index = np.asarray(image_index, dtype=int)
+    table = np.zeros((max(body_to_camera, default=-1) + 1, 4, 4))
+    for image, pose in body_to_camera.items():
+        table[image] = pose
+    return table[image_index]
+
+
 def default_occlusion_tolerance(points: np.ndarray) -> float:
     """How far behind the occluding surface a point may lie and still count as seen: 2 % of the cloud's extent."""
     return 0.02 * float(np.ptp(points, axis=0).max())
@@ -150,7 +159,7 @@ def sample_images(points, image_index, body_to_camera: dict, intrinsics: Intrins
     each row. Bilinear samples, or with ``purity_tolerance`` only those
     ``sample_pure`` finds pure (0 elsewhere, and outside the image).
     """
-    poses = np.array([body_to_camera[i] for i in image_index]).reshape(-1, 4, 4)
+    poses = poses_of(body_to_camera, image_index)
     points_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], points) + poses[:, :3, 3]
     uv = project(points_cam, intrinsics)
     inside = (uv[:, 0] >= 1) & (uv[:, 0] < intrinsics.width - 1) & (uv[:, 1] >= 1) & (uv[:, 1] < intrinsics.height - 1)
@@ -180,7 +189,7 @@ def cloud_observations(
         occlusion_tolerance = default_occlusion_tolerance(cloud.points)
     point_index, image_index = visible_pairs(cloud, body_to_camera, min_cos_emission, occlusion_tolerance, surface)
     brightness, points_cam, inside = sample_images(cloud.points[point_index], image_index, body_to_camera, intrinsics, images, purity_tolerance)
-    poses = np.array([body_to_camera[i] for i in image_index]).reshape(-1, 4, 4)
+    poses = poses_of(body_to_camera, image_index)
     normal_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.normals[point_index])
     view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
     keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0)

@@ -200,14 +200,15 @@ class PureSampleCloud:
     offset_px: np.ndarray  # (M,) chosen offset along the surface normal, in pixels
     residual: np.ndarray  # (M,) relative RMS residual of the one-facet fit
     n_candidates: int
+    light_dir_cam: np.ndarray  # the light the normals were fitted under
 
-    def save(self, path, **extra) -> None:
-        """One .npz with the arrays (and ``extra`` ones)."""
+    def save(self, path) -> None:
+        """One .npz with the arrays."""
         obs = self.observations
         np.savez_compressed(
             path, points=self.points, normals=self.normals, surface_normals=self.surface_normals, point_index=obs.point_index,
             normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness, image_index=self.image_index,
-            offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, **extra,
+            offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, light_dir_cam=self.light_dir_cam,
         )
 
     @classmethod
@@ -219,7 +220,7 @@ class PureSampleCloud:
             )
             return cls(
                 data["points"], data["normals"], data["surface_normals"], observations, data["image_index"], data["offset_px"], data["residual"],
-                int(data["n_candidates"]),
+                int(data["n_candidates"]), data["light_dir_cam"],
             )
 
 
@@ -231,7 +232,7 @@ def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, 
     keep &= counts[pair_point] >= min_observations
     enough = counts >= min_observations
     p = pair_point[keep]
-    rotations = np.array([poses[i][:3, :3] for i in pair_image[keep]]).reshape(-1, 3, 3)
+    rotations = cloud_lib.poses_of(poses, pair_image[keep])[:, :3, :3]
     view_cam = -points_cam[keep] / np.linalg.norm(points_cam[keep], axis=1, keepdims=True)
     start_albedo = np.where(enough, albedo, np.nan)
     start_k = np.where(enough, minnaert_k, np.nan)
@@ -274,7 +275,7 @@ def refine_by_pure_samples(
     candidates = cloud_lib.OrientedCloud(points, normals, np.zeros(len(points), int))
     pair_point, pair_image = cloud_lib.visible_pairs(candidates, poses, min_cos_emission, cloud_lib.default_occlusion_tolerance(points), surface)
     # A candidate's footprint: its mean depth over the cameras that see it, over the focal length.
-    pair_poses = np.array([poses[i] for i in pair_image]).reshape(-1, 4, 4)
+    pair_poses = cloud_lib.poses_of(poses, pair_image)
     depth = np.einsum("nj,nj->n", pair_poses[:, 2, :3], points[pair_point]) + pair_poses[:, 2, 3]
     counts = np.bincount(pair_point, minlength=len(points))
     footprint = np.bincount(pair_point, weights=depth, minlength=len(points)) / np.maximum(counts, 1) / intrinsics.focal_px
@@ -303,7 +304,7 @@ def refine_by_pure_samples(
     rows = in_accepted[pair_point] >= 0
     point_index, image_index = in_accepted[pair_point[rows]], pair_image[rows]
     brightness, points_cam, inside = cloud_lib.sample_images(points[point_index], image_index, poses, intrinsics, images, purity_tolerance)
-    rotations = np.array([poses[i][:3, :3] for i in image_index]).reshape(-1, 3, 3)
+    rotations = cloud_lib.poses_of(poses, image_index)[:, :3, :3]
     normal_cam = np.einsum("nij,nj->ni", rotations, normals[point_index])
     view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
     # The fitted normal may turn away from a camera that saw the surface's: that sample goes.
@@ -313,5 +314,8 @@ def refine_by_pure_samples(
     observations = Observations(
         point_index=point_index[keep], normal_cam=normal_cam[keep], view_cam=view_cam[keep], brightness=brightness[keep], n_points=len(points),
     )
-    return PureSampleCloud(points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points))
+    return PureSampleCloud(
+        points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points),
+        np.asarray(light_dir_cam, dtype=float),
+    )
 

@@ -137,7 +137,7 @@ def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dic
             f"({pure.observations.n_obs} pure samples); too few to fit. Raise reconstruction.refine_candidates, "
             f"reconstruction.refine_purity_tolerance or reconstruction.refine_max_residual"
         )
-    pure.save(out_npz, light_dir_cam=start.light_dir_cam, albedo_start=albedo, minnaert_k_start=minnaert_k)
+    pure.save(out_npz)
     log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
 
 
@@ -263,11 +263,9 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
 
     # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
     pure = refine.PureSampleCloud.load(refined_npz)
-    with np.load(refined_npz) as data:
-        refine_light = data["light_dir_cam"]
     tick = time.perf_counter()
     if method == "koizumi_lm":
-        after = estimate.fit_koizumi_lm(pure.observations, light_init=refine_light)
+        after = estimate.fit_koizumi_lm(pure.observations, light_init=pure.light_dir_cam)
     else:
         after = _run(method, pure.observations, known_k)
     refit_seconds = time.perf_counter() - tick
