@@ -48,6 +48,7 @@ __all__ = [
     "minnaert_brightness",
     "fit_iwano_linear",
     "fit_koizumi_lm",
+    "fit_pooled_k",
     "solve_arrow_system",
     "arrow_covariance",
     "light_std_deg",
@@ -586,7 +587,7 @@ def _solve_least_squares(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev
     return result.x, float(result.cost), int(result.njev or 0), int(result.nfev), bool(result.success), str(result.message)
 
 
-def _solve_block_lm(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev, verbose):
+def _solve_block_lm(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev, verbose, hold_light=False):
     """Levenberg-Marquardt exploiting the arrow structure of J^T J.
 
     Each residual depends on the two light parameters and on its own point's
@@ -602,6 +603,10 @@ def _solve_block_lm(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev, ver
     Nielsen's gain-ratio rule. Stopping mirrors least_squares: ftol on the
     relative cost decrease, xtol on the step relative to ``|x|``, gtol on the
     scaled gradient, or ``max_nfev`` residual evaluations.
+
+    ``hold_light``: the light stays at ``x0``'s; the couplings and the light's
+    gradient are zeroed, so its step is exactly zero and each point's step is
+    its own 2x2 solve.
     """
     local = problem.local
     m = problem.n_fitted
@@ -627,6 +632,9 @@ def _solve_block_lm(problem: KoizumiProblem, x0, ftol, xtol, gtol, max_nfev, ver
         w_ar, w_ak, w_br, w_bk = bsum(d_a * d_rho), bsum(d_a * d_k), bsum(d_b * d_rho), bsum(d_b * d_k)
         g_a, g_b = float(d_a @ residual), float(d_b @ residual)
         g_r, g_k = bsum(d_rho * residual), bsum(d_k * residual)
+        if hold_light:
+            w_ar = w_ak = w_br = w_bk = np.zeros(m)
+            g_a = g_b = 0.0
         gradient = np.concatenate([[g_a, g_b], g_r, g_k])
 
         scale_light = np.maximum(scale_light, [v_aa, v_bb])
@@ -809,6 +817,7 @@ def fit_koizumi_lm(
     min_observations: int = 2,
     lsmr_tol: float = 1e-10,
     verbose: int = 0,
+    hold_light: bool = False,
 ) -> FitResult:
     """The paper's estimator: one global light, an albedo and a Minnaert k per point.
 
@@ -851,8 +860,14 @@ def fit_koizumi_lm(
         1e-6, is enough on noiseless data but on noisy data its inexact steps
         make trf crawl (50,000 points, sigma 0.005: 845 evaluations, 320 s,
         light still 1.5e-5 deg off the optimum); 1e-10 converges in about 10.
+    hold_light : bool
+        Keep the light at ``light_init`` (a vector) and fit only each point's
+        albedo and k under it (block_lm only): the second step of a two-step
+        estimate whose light comes from elsewhere (:func:`fit_pooled_k`).
     """
     start = time.perf_counter()
+    if hold_light and (solver != "block_lm" or light_init is None or isinstance(light_init, str)):
+        raise ValueError("fit_koizumi_lm: hold_light needs solver='block_lm' and a (3,) light_init vector")
     if solver not in SOLVERS:
         raise ValueError(f"fit_koizumi_lm: solver must be one of {SOLVERS}, got {solver!r}")
     problem = KoizumiProblem(obs, min_observations=min_observations)
@@ -865,7 +880,7 @@ def fit_koizumi_lm(
     if solver == "block_lm":
         max_nfev = 200 if max_nfev is None else int(max_nfev)
         x, cost, n_iterations, nfev, success, message = _solve_block_lm(
-            problem, x0, ftol, xtol, gtol, max_nfev, verbose
+            problem, x0, ftol, xtol, gtol, max_nfev, verbose, hold_light
         )
         solver_name = "block-Schur Levenberg-Marquardt (numpy)"
     else:
@@ -890,6 +905,73 @@ def fit_koizumi_lm(
         message=message,
         fit_seconds=elapsed,
         solver=solver_name,
+    )
+
+
+def fit_pooled_k(obs: Observations, light_init, minnaert_k_init: float, *, min_observations: int = 2, ftol: float = 1e-12, xtol: float = 1e-12, max_nfev: int = 200) -> FitResult:
+    """One light, an albedo per point and one Minnaert k for the whole body.
+
+    The paper's model with k pooled over the points, as planetary photometry
+    fits a Minnaert k to a region. It is the light step of the refinement
+    (``refine``): with a free k per point the light's direction out of the
+    plane of the views and the Sun is nearly a gauge freedom. A brightness
+    offset ``c`` common to a point's views (what a tilt of the light out of
+    that plane adds to ``cos_i`` at a point of latitude ``lat``: ``c = e
+    tan(lat)``) changes ``log b`` by ``c / cos_i``, which is ``c`` (taken up
+    by the albedo) plus ``-c log cos_i`` (taken up by a per-point k) to
+    second order in the phase of the view. A per-point k therefore lets
+    errors of 1e-3 in the samples move the light by a degree; one k for the
+    body does not.
+
+    Minimises ``sum_j (b_j - albedo_p cos_i_j**k cos_o_j**(k - 1))**2`` with
+    ``scipy.optimize.least_squares`` (trf, analytic sparse Jacobian). Points
+    with fewer than ``min_observations`` rows are left out (NaN).
+    """
+    start = time.perf_counter()
+    problem = KoizumiProblem(obs, min_observations=min_observations)
+    m = problem.n_fitted
+    if m == 0 or problem.n_rows < m + 3:
+        raise ValueError(f"fit_pooled_k: {problem.n_rows} usable observations of {m} points cannot determine {m + 3} unknowns")
+    light_init = np.asarray(light_init, dtype=np.float64)
+    if light_init.shape != (3,) or not np.all(np.isfinite(light_init)):
+        raise ValueError(f"fit_pooled_k: light_init must be a finite (3,) vector, got {light_init!r}")
+    if not np.isfinite(minnaert_k_init) or minnaert_k_init <= 0:
+        raise ValueError(f"fit_pooled_k: minnaert_k_init must be a positive number, got {minnaert_k_init!r}")
+    light_init = light_init / np.linalg.norm(light_init)
+    # Start: each point's albedo by least squares under the initial light and k.
+    shape_term = np.maximum(problem.normal @ light_init, problem.cos_floor) ** minnaert_k_init * np.exp((minnaert_k_init - 1.0) * problem.log_cos_o)
+    albedo0 = np.bincount(problem.local, shape_term * problem.brightness, m) / np.bincount(problem.local, shape_term**2, m)
+    x0 = np.concatenate([tangent_from_light(light_init), albedo0, [minnaert_k_init]])
+
+    def expand(x):
+        return problem.pack(x[:2], x[2:-1], np.full(m, x[-1]))
+
+    rows = np.arange(problem.n_rows)
+    indices = np.column_stack([np.zeros(problem.n_rows, np.int64), np.ones(problem.n_rows, np.int64), 2 + problem.local, np.full(problem.n_rows, 2 + m)]).ravel()
+    indptr = np.arange(0, 4 * problem.n_rows + 1, 4)
+
+    def jacobian(x):
+        data = np.column_stack(problem.jacobian_columns(expand(x))).ravel()
+        return scipy.sparse.csr_matrix((data, indices, indptr), shape=(len(rows), m + 3))
+
+    solution = scipy.optimize.least_squares(
+        lambda x: problem.residuals(expand(x)), x0, jac=jacobian, method="trf", x_scale="jac", ftol=ftol, xtol=xtol, gtol=1e-14, max_nfev=max_nfev,
+    )
+    tangent, albedo, k = problem.unpack(expand(solution.x))
+    return FitResult(
+        method="pooled_k",
+        light_dir_cam=light_from_tangent(tangent),
+        albedo=problem.per_point(albedo),
+        minnaert_k=problem.per_point(k),
+        n_points_fitted=m,
+        n_obs=problem.n_rows,
+        cost=float(solution.cost),
+        n_iterations=int(solution.nfev),
+        nfev=int(solution.nfev),
+        success=bool(solution.success),
+        message=str(solution.message),
+        fit_seconds=time.perf_counter() - start,
+        solver="scipy.optimize.least_squares trf, sparse analytic Jacobian, one k",
     )
 
 
