@@ -110,7 +110,9 @@ def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dic
     """The photometric refinement of one reconstruction (``refine.refine_by_pure_samples``), from images and cloud alone.
 
     The light it holds fixed, and the albedo and k it starts from, are the
-    paper's estimator's on the cloud's bilinear samples. Only the cloud's
+    paper's estimator's on the cloud's bilinear samples; at the end it fits
+    the light again to the pure samples, with one k for the body
+    (``PureSampleCloud.refined_light_dir_cam``). Only the cloud's
     points and normals are read from the registration file: its transform
     to the shape model is not used.
     """
