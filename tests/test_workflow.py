@@ -184,8 +184,14 @@ def test_small_run_table2_from_images_alone(small_run):
     # the body); the paper's joint fit on the same samples lets its elevation go (small run: up to 2.1 deg).
     paper_method = table[table.method == "koizumi_lm"]
     assert np.allclose(paper_method.light_dir_err_deg_refined, paper_method.refinement_light_err_deg, atol=1e-9)
-    assert (paper_method.light_dir_err_deg_refined < 1.5).all()  # small run: 0.11-0.76 deg
+    # Small run: 0.11 and 0.72 deg with priors (the same on every run); 0.35-0.76 without, which varies
+    # from run to run (bundle adjustment without priors is not bit-reproducible). The joint fit: up to 2.5.
+    assert (paper_method[paper_method.priors == "on"].light_dir_err_deg_refined < 1.0).all()
+    assert (paper_method.light_dir_err_deg_refined < 2.0).all()
     assert paper_method.light_dir_err_deg_refined_joint.notna().all()
+    # The one-k light's own check, without the truth: on these uniform sets the per-point k barely spreads
+    # (small run: 0.0008-0.0009 with priors, 0.004-0.006 without; k spread by +-0.05 would give 0.029).
+    assert (paper_method[paper_method.priors == "on"].k_spread_refined < 0.005).all() and (paper_method.k_spread_refined > 0).all()
     assert (paper_method.albedo_err_refined.abs() < 0.01).all()
     assert (paper_method.k_err_refined.abs() < 0.01).all()
     assert (paper_method.k_err_refined.abs() < paper_method.k_err.abs()).all()
