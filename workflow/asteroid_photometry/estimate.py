@@ -946,13 +946,13 @@ def fit_pooled_k(obs: Observations, light_init, minnaert_k_init: float, *, min_o
     def expand(x):
         return problem.pack(x[:2], x[2:-1], np.full(m, x[-1]))
 
-    rows = np.arange(problem.n_rows)
-    indices = np.column_stack([np.zeros(problem.n_rows, np.int64), np.ones(problem.n_rows, np.int64), 2 + problem.local, np.full(problem.n_rows, 2 + m)]).ravel()
-    indptr = np.arange(0, 4 * problem.n_rows + 1, 4)
+    # The problem's CSR layout, with every row's k entry in the one k column.
+    indices = problem._indices.copy()
+    indices[3::4] = 2 + m
 
     def jacobian(x):
         data = np.column_stack(problem.jacobian_columns(expand(x))).ravel()
-        return scipy.sparse.csr_matrix((data, indices, indptr), shape=(len(rows), m + 3))
+        return scipy.sparse.csr_matrix((data, indices, problem._indptr), shape=(problem.n_rows, m + 3))
 
     solution = scipy.optimize.least_squares(
         lambda x: problem.residuals(expand(x)), x0, jac=jacobian, method="trf", x_scale="jac", ftol=ftol, xtol=xtol, gtol=1e-14, max_nfev=max_nfev,
@@ -966,7 +966,7 @@ def fit_pooled_k(obs: Observations, light_init, minnaert_k_init: float, *, min_o
         n_points_fitted=m,
         n_obs=problem.n_rows,
         cost=float(solution.cost),
-        n_iterations=int(solution.nfev),
+        n_iterations=int(solution.njev or 0),
         nfev=int(solution.nfev),
         success=bool(solution.success),
         message=str(solution.message),

@@ -328,7 +328,7 @@ def refine_by_pure_samples(
     )
     # The light again, from the pure samples, with one k for the body (step 4, module docstring).
     refined_light, refined_k = np.full(3, np.nan), np.nan
-    if np.count_nonzero(np.bincount(observations.point_index, minlength=len(points))) and observations.n_obs > len(points) + 3:
+    if observations.n_obs >= 3 + np.count_nonzero(observations.observations_per_point):  # an albedo per point, one k, the light
         pooled = fit_pooled_k(observations, light_dir_cam, minnaert_k, min_observations=min_observations)
         refined_light, refined_k = pooled.light_dir_cam, float(np.nanmedian(pooled.minnaert_k))
         log.info("light from the pure samples with one k (%.4f): %.3f deg from the light the normals were fitted under", refined_k, float(angle_between_deg(refined_light, light_dir_cam)))

@@ -278,9 +278,10 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
         joint = plausible_points(estimate.fit_koizumi_lm(pure.observations, light_init=pure.light_dir_cam))
         after = estimate.fit_koizumi_lm(pure.observations, light_init=pure.refined_light_dir_cam, hold_light=True)
     else:
-        after = joint = _run(method, pure.observations, known_k)
+        joint, after = None, _run(method, pure.observations, known_k)
     refit_seconds = time.perf_counter() - tick
     after = plausible_points(after)
+    joint = after if joint is None else joint
     refined_body = register.transform_points(transform, pure.points)
     refined_surface, refined_facets = query.closest(refined_body)
     albedo_true_refined, k_true_refined, normals_true_refined, _ = truth_for_facets(refined_facets, shape, frames, render_dir)
