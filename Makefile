@@ -8,7 +8,7 @@
 #   make lint          snakemake --lint
 #   make clean         remove results/ (Snakemake's .snakemake/ metadata is kept)
 #
-# Variables (make VAR=value): VENV, PYTHON, CORES, SHAPE_MODEL_DIR, PYTEST_ARGS,
+# Variables (make VAR=value): VENV, PYTHON, CORES, PYTEST_ARGS,
 # SNAKEMAKE_ARGS (extra arguments for every Snakemake call, e.g. -n).
 
 SHELL := /bin/bash
@@ -27,12 +27,10 @@ CORES ?= all
 PYTEST_ARGS ?=
 SNAKEMAKE_ARGS ?=
 
-# A local copy of Gaskell's Itokawa model: when present, the workflow uses it
-# instead of downloading the model from the PDS archive.
-SHAPE_MODEL_DIR ?= ../shared/data/itokawa
-SHAPE_MODEL_FILE := $(wildcard $(SHAPE_MODEL_DIR)/itokawa_low.obj)
-CONFIG_ARGS := --configfile config/config.yaml \
-	$(if $(SHAPE_MODEL_FILE),--config shape_model_path=$(abspath $(SHAPE_MODEL_FILE)))
+# The config is the Snakefile's own (config/config.yaml, shape models shipped in
+# workflow/resources/shape/): no --config or --configfile is passed here, so that
+# one given in SNAKEMAKE_ARGS merges with the file's keys instead of replacing
+# another (Snakemake keeps only the last --config and the last --configfile).
 
 # Debian packages: libllvm19 for Mitsuba's LLVM JIT backend (llvm_ad_rgb),
 # libusb-1.0-0 because open3d links against it on import.
@@ -51,17 +49,17 @@ VENV_STAMP := $(VENV)/.requirements.stamp
 .PHONY: reproduce test venv sysdeps report clean lint help
 
 reproduce: sysdeps venv
-	$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) --rerun-incomplete $(SNAKEMAKE_ARGS)
-	$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) --report results/report.zip $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(SNAKEMAKE) --rerun-incomplete $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
 
 report: venv
-	$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) --report results/report.zip $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
 
 test: sysdeps venv
 	$(RUN_ENV) $(VENV)/bin/python -m pytest tests -v --durations=10 $(PYTEST_ARGS)
 
 lint: venv
-	$(RUN_ENV) $(VENV)/bin/snakemake --lint $(CONFIG_ARGS) $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(VENV)/bin/snakemake --lint $(SNAKEMAKE_ARGS)
 
 venv: $(VENV_STAMP)
 

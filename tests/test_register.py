@@ -1,7 +1,7 @@
 """Tests of asteroid_photometry.register (registration onto the shape model) and .quality (scores).
 
-The registration tests use Ostro's radar model of Itokawa from the shared
-data (skipped without it): known similarity transforms, a hole of 30 %, the
+The registration tests use Ostro's radar model of Itokawa, shipped with the
+workflow: known similarity transforms, a hole of 30 %, the
 end-over-end ambiguity, and clouds that are not the body. Surface distances
 and the quality scores are also checked on a box with exact answers.
 """
@@ -45,8 +45,8 @@ BOX_FACES = np.array(
 
 
 @pytest.fixture(scope="module")
-def ostro(shared_itokawa_dir):
-    model = load_shape_model(shared_itokawa_dir / "25143itokawa.tab", "ostro_radar")
+def ostro(itokawa_dir):
+    model = load_shape_model(itokawa_dir / "25143itokawa.tab", "ostro_radar")
     return model.vertices_m, model.faces
 
 

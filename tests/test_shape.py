@@ -1,6 +1,9 @@
 """Tests of asteroid_photometry.shape: parsing, verification, facet geometry, download, prepared model."""
 
+import gzip
+import hashlib
 import logging
+import lzma
 import runpy
 from pathlib import Path
 from types import SimpleNamespace
@@ -13,7 +16,7 @@ from asteroid_photometry.shape import ShapeModelError
 
 SCRIPTS_DIR = Path(__file__).parents[1] / "workflow" / "scripts"
 
-# Figures from /work/shared/data/itokawa/SOURCES.md.
+# Figures from workflow/resources/shape/SOURCES.md.
 SHARED_MODELS = {
     "gaskell_ver64q": dict(
         file_name="itokawa_low.obj",
@@ -84,16 +87,17 @@ def register_model(monkeypatch, name, vertices_km, faces, urls=("file:///nonexis
         n_vertices_used=n_used,
         n_facets=len(faces),
         geometry_sha256=shape.geometry_sha256(vertices_km, faces),
+        shipped_file=f"{name}.obj.xz",
     )
     monkeypatch.setitem(shape.SHAPE_MODELS, name, spec)
     return spec
 
 
 @pytest.fixture(scope="module")
-def shared_models(shared_itokawa_dir):
+def shared_models(itokawa_dir):
     """Each shared model loaded once: name -> ShapeModel."""
     return {
-        name: shape.load_shape_model(shared_itokawa_dir / facts["file_name"], name)
+        name: shape.load_shape_model(itokawa_dir / facts["file_name"], name)
         for name, facts in SHARED_MODELS.items()
     }
 
@@ -104,7 +108,40 @@ def cube_model(monkeypatch, tmp_path):
     return write_obj(tmp_path / "cube.obj", CUBE_VERTICES_KM, CUBE_FACES)
 
 
-# ---------------------------------------------------------------- registry and shared files
+# ---------------------------------------------------------------- registry and shipped files
+
+# sha256 of each model file as its archive serves it, before compression (SOURCES.md).
+ARCHIVE_SHA256 = {
+    "gaskell_ver64q": "1879abcde28ca60f8616da212d6f7ae51dbc0cfc47ef271228d1bd2719b2a26b",
+    "ostro_radar": "2d3744cc13c0007db70eb28734ec9b40678e155fb1cb5f7949ee375fef6b5557",
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHARED_MODELS))
+def test_shipped_copy_is_the_archive_file_and_loads_compressed(name):
+    spec = shape.SHAPE_MODELS[name]
+    assert spec.shipped_path.is_file() and spec.shipped_path.stat().st_size < 300_000
+    assert hashlib.sha256(lzma.decompress(spec.shipped_path.read_bytes())).hexdigest() == ARCHIVE_SHA256[name]
+    sources = (spec.shipped_path.parent / "SOURCES.md").read_text()
+    assert spec.shipped_file in sources and ARCHIVE_SHA256[name] in sources
+    assert hashlib.sha256(spec.shipped_path.read_bytes()).hexdigest() in sources
+    model = shape.load_shape_model(spec.shipped_path, name)
+    assert model.geometry_sha256 == spec.geometry_sha256 and len(model.faces) == spec.n_facets
+
+
+def test_compressed_files_are_read_and_a_broken_one_is_named(cube_model, tmp_path):
+    text = cube_model.read_bytes()
+    expected = shape.read_shape_file(cube_model)
+    for suffix, compress in ((".xz", lzma.compress), (".gz", gzip.compress)):
+        packed = tmp_path / f"cube.obj{suffix}"
+        packed.write_bytes(compress(text))
+        vertices_km, faces = shape.read_shape_file(packed)
+        assert np.array_equal(vertices_km, expected[0]) and np.array_equal(faces, expected[1])
+    truncated = tmp_path / "cube_truncated.obj.xz"
+    truncated.write_bytes(lzma.compress(text)[:40])
+    with pytest.raises(ShapeModelError, match="cube_truncated.obj.xz: cannot decompress"):
+        shape.read_shape_file(truncated)
+
 
 
 def test_registry_describes_both_models():
@@ -413,10 +450,10 @@ def test_download_keeps_an_existing_file_on_failure(monkeypatch, tmp_path):
 # ---------------------------------------------------------------- prepared model and rule scripts
 
 
-def test_write_prepared_model(shared_itokawa_dir, tmp_path, caplog):
+def test_write_prepared_model(itokawa_dir, tmp_path, caplog):
     out_npz = tmp_path / "prepared" / "gaskell_ver64q.npz"
     with caplog.at_level(logging.INFO, logger="asteroid_photometry.shape"):
-        shape.write_prepared_model(shared_itokawa_dir / "itokawa_low.obj", "gaskell_ver64q", out_npz)
+        shape.write_prepared_model(itokawa_dir / "itokawa_low.obj", "gaskell_ver64q", out_npz)
     with np.load(out_npz) as prepared:
         assert set(prepared.files) == {
             "vertices_m", "faces", "centroids_m", "normals", "areas_m2", "geometry_sha256", "model_name"

@@ -19,22 +19,14 @@ def snakemake(*args, cwd=REPO, timeout=600):
     return subprocess.run([*SNAKEMAKE, "-s", str(REPO / "Snakefile"), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
 
 
-@pytest.fixture(scope="module")
-def shared_dir():
-    path = REPO.parent / "shared" / "data" / "itokawa"
-    if not path.is_dir():
-        pytest.skip(f"{path} is absent: the shape models are read from there")
-    return path
-
-
-def test_lint_is_clean(shared_dir):
-    run = snakemake("--lint", "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / '25143itokawa.tab'}")
+def test_lint_is_clean():
+    run = snakemake("--lint", "--configfile", str(REPO / "config" / "test.yaml"))
     assert run.returncode == 0, run.stdout + run.stderr
     assert "Congratulations" in run.stdout + run.stderr
 
 
-def test_dry_run_of_the_full_config(shared_dir, tmp_path):
-    run = snakemake("-n", "--cores", "2", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"), "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}")
+def test_dry_run_of_the_full_config(tmp_path):
+    run = snakemake("-n", "--cores", "2", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"))
     assert run.returncode == 0, run.stdout + run.stderr
     jobs = _job_counts(run.stdout)
     # 16 sets of Table 1, the same 16 with a varying surface, and 3 noise levels of the first 16.
@@ -47,12 +39,14 @@ def test_dry_run_of_the_full_config(shared_dir, tmp_path):
     assert jobs["fit_cloud"] == 16 * 2 * 3
     assert jobs["noise_monte_carlo"] == 16
     assert jobs["geometry_sensitivity"] == 16
+    # The shape model ships with the workflow: a clone needs no network.
+    assert "fetch_shape_model" not in jobs and jobs["prepare_shape"] == 1
 
 
-def test_dry_run_without_local_model_plans_the_download(tmp_path):
-    run = snakemake("-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"))
+def test_dry_run_plans_the_download_when_asked(tmp_path):
+    run = snakemake("-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"), "--config", "shape_model_source=download")
     assert run.returncode == 0, run.stdout + run.stderr
-    assert "fetch_shape_model" in run.stdout
+    assert _job_counts(run.stdout)["fetch_shape_model"] == 1
 
 
 def _job_counts(stdout):
@@ -64,11 +58,11 @@ def _job_counts(stdout):
     return jobs
 
 
-def test_dry_run_with_the_optional_parts_off_plans_table1_only(shared_dir, tmp_path):
+def test_dry_run_with_the_optional_parts_off_plans_table1_only(tmp_path):
     run = snakemake(
         "-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"),
         # The README's Table-1-only command.
-        "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}", "noise_levels=[]", "surface_maps=[]", "reconstruction={enabled: false}",
+        "--config", "noise_levels=[]", "surface_maps=[]", "reconstruction={enabled: false}",
     )
     assert run.returncode == 0, run.stdout + run.stderr
     jobs = _job_counts(run.stdout)
@@ -84,9 +78,9 @@ def test_bad_config_is_refused_naming_the_key(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def small_run(shared_dir, tmp_path_factory):
+def small_run(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("small_run")
-    run = snakemake("--cores", "2", "-d", str(workdir), "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}")
+    run = snakemake("--cores", "2", "-d", str(workdir), "--configfile", str(REPO / "config" / "test.yaml"))
     assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
     return workdir
 
@@ -230,7 +224,33 @@ def test_small_run_geometry_sensitivity(small_run):
     assert (pure.k_err.abs() < 0.001).all() and (pure.n_points > 100).all()
 
 
-def test_rerun_has_nothing_to_do(small_run, shared_dir):
-    run = snakemake("-n", "--cores", "1", "-d", str(small_run), "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}")
+def test_rerun_has_nothing_to_do(small_run):
+    run = snakemake("-n", "--cores", "1", "-d", str(small_run), "--configfile", str(REPO / "config" / "test.yaml"))
     assert run.returncode == 0
     assert "Nothing to be done" in run.stdout + run.stderr
+
+
+def test_a_changed_key_reruns_only_what_reads_it(small_run):
+    # A --config on the command line merges with the config file: the shipped shape model stays,
+    # and only the rendering (which reads samples_per_pixel) and what follows from it rerun.
+    run = snakemake("-n", "--cores", "1", "-d", str(small_run), "--configfile", str(REPO / "config" / "test.yaml"), "--config", "samples_per_pixel=8")
+    assert run.returncode == 0, run.stdout + run.stderr
+    jobs = _job_counts(run.stdout)
+    assert jobs["render"] == 4  # two base sets and their surface-map variants
+    for upstream in ("fetch_shape_model", "prepare_shape", "imaging_geometry", "observation_geometry"):
+        assert upstream not in jobs, upstream
+    assert "Params have changed" in run.stdout or "params" in run.stdout.lower()
+
+
+def test_make_passes_the_users_config_alone():
+    # `make reproduce SNAKEMAKE_ARGS="--config ..."`: the Makefile adds no --config or --configfile of
+    # its own, since Snakemake keeps only the last of each and would drop one silently.
+    run = subprocess.run(
+        ["make", "-n", "-C", str(REPO), "reproduce", "SNAKEMAKE_ARGS=--config samples_per_pixel=8", f"VENV={Path(sys.executable).parents[1]}"],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    snakemake_lines = [line for line in run.stdout.splitlines() if "bin/snakemake" in line]
+    assert len(snakemake_lines) == 2  # the run, then the report
+    for line in snakemake_lines:
+        assert line.count("--config") == 1 and "--configfile" not in line and "shape_model" not in line

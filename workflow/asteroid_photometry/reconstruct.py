@@ -5,7 +5,7 @@ through *reconstructed* cameras. The ground-truth path of the workflow uses the
 known poses and the shape model; this module instead recovers the cameras and a
 sparse point cloud from the set's own images, as a mission would, with the
 spacecraft's navigation solution (camera positions in the body frame, a few
-metres accurate) as priors in bundle adjustment (method.md, section 2).
+metres accurate) as priors in bundle adjustment.
 
 Steps (:func:`reconstruct_set`):
 
@@ -28,7 +28,7 @@ Steps (:func:`reconstruct_set`):
    reprojection RMS, camera-position residuals against the priors and errors
    against the truth, and the over-fitting diagnostic.
 
-Weighting (method.md, section 2). Metashape minimises
+Weighting. Photogrammetry packages such as Metashape minimise
 ``sum (r_px / sigma_tie_px)^2 + sum |c - c_prior|^2 / sigma_cam_m^2`` (tie
 point accuracy in pixels, camera accuracy in metres). COLMAP's reprojection
 residuals are in pixels with unit weight and its position-prior residuals are

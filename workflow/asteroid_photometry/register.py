@@ -5,8 +5,8 @@ own frame: without priors, an arbitrary similarity (rotation, translation
 and an unknown scale) away from the body frame; with position priors,
 roughly in the body frame already. Before its normals, albedo and Minnaert
 k can be scored point by point against the truth, it has to be placed on
-the shape model. :func:`register_to_shape` does that in two stages, the
-scheme of ``docs/method.md`` section 3:
+the shape model. :func:`register_to_shape` does that in two stages, a
+coarse global alignment followed by a local refinement:
 
 1. **Global rough alignment, no initial guess.** The source is thinned on
    a voxel grid and stray points (outliers) are removed by their distance

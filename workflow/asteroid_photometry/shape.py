@@ -1,9 +1,12 @@
 """Itokawa shape models: registry, parsers, verification and facet geometry.
 
-The first stage of the flow. ``fetch_shape_model`` downloads a model from the
-PDS Small Bodies Node (or the user points ``shape_model_path`` at a local
-copy), ``prepare_shape`` verifies it and writes the facet table (centroids,
-outward normals, areas) that rendering and observation read.
+The first stage of the flow. Both models ship with the workflow, xz-compressed,
+in ``workflow/resources/shape/`` (their provenance and checksums are in the
+``SOURCES.md`` there); ``fetch_shape_model`` downloads a model from the PDS
+Small Bodies Node instead when asked to (``shape_model_source: download``), or
+the user points ``shape_model_path`` at a copy of their own. ``prepare_shape``
+verifies it and writes the facet table (centroids, outward normals, areas)
+that rendering and observation read. Files may be xz- or gzip-compressed.
 
 Two text formats are read, the format being detected from the content:
 
@@ -27,8 +30,10 @@ checksum in either format, with or without its unused vertices.
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import hashlib
 import logging
+import lzma
 import os
 import tempfile
 import time
@@ -40,6 +45,9 @@ from pathlib import Path
 import numpy as np
 
 logger = logging.getLogger(__name__)
+
+# The compressed copies of the registry's models that ship with the workflow.
+SHIPPED_SHAPE_DIR = Path(__file__).resolve().parents[1] / "resources" / "shape"
 
 METRES_PER_KM = 1000.0
 # Checksum quantum: 1e-6 km (1 mm). Both archives give coordinates to at most
@@ -78,6 +86,12 @@ class ShapeModelSpec:
     n_vertices_used: int
     n_facets: int
     geometry_sha256: str
+    shipped_file: str
+
+    @property
+    def shipped_path(self) -> Path:
+        """The compressed copy that ships with the workflow (workflow/resources/shape/)."""
+        return SHIPPED_SHAPE_DIR / self.shipped_file
 
 
 # URLs: the tools here cannot reach the archive, so none was fetched. The PDS3
@@ -111,6 +125,7 @@ SHAPE_MODELS: dict[str, ShapeModelSpec] = {
         n_vertices_used=24578,
         n_facets=49152,
         geometry_sha256="90e2e9e351021db8f1d993c3ad83b73ac76060329ec485864df5015ae9078f02",
+        shipped_file="gaskell_ver64q.obj.xz",
     ),
     "ostro_radar": ShapeModelSpec(
         name="ostro_radar",
@@ -134,6 +149,7 @@ SHAPE_MODELS: dict[str, ShapeModelSpec] = {
         n_vertices_used=6098,
         n_facets=12192,
         geometry_sha256="7ed3c0b73a406b0dfd2a202679a82c2b10e7180da233d42ac61bd553f0db5a17",
+        shipped_file="ostro_radar.tab.xz",
     ),
 }
 DEFAULT_SHAPE_MODEL = "gaskell_ver64q"
@@ -313,6 +329,18 @@ def parse_shape_text(text: str, path="<text>") -> tuple[np.ndarray, np.ndarray]:
     return vertices_km, faces_1based - 1
 
 
+def _decompressed(data: bytes, path) -> bytes:
+    """``data`` itself, or its content when it is xz- or gzip-compressed (recognised by magic bytes)."""
+    try:
+        if data[:6] == b"\xfd7zXZ\x00":
+            return lzma.decompress(data)
+        if data[:2] == b"\x1f\x8b":
+            return gzip.decompress(data)
+    except (lzma.LZMAError, OSError, EOFError) as error:
+        raise ShapeModelError(f"{path}: cannot decompress the shape model file: {error}") from None
+    return data
+
+
 def read_shape_file(path) -> tuple[np.ndarray, np.ndarray]:
     """Read a model file: (vertices_km (V,3) float64, faces (F,3) int64 0-based). See :func:`parse_shape_text`."""
     path = Path(path)
@@ -325,8 +353,7 @@ def read_shape_file(path) -> tuple[np.ndarray, np.ndarray]:
         data = path.read_bytes()
     except OSError as error:
         raise ShapeModelError(f"{path}: cannot read the shape model file: {error}") from error
-    if data[:2] == b"\x1f\x8b":
-        raise ShapeModelError(f"{path}: the file is gzip-compressed; decompress it first")
+    data = _decompressed(data, path)
     try:
         text = data.decode("ascii")
     except UnicodeDecodeError as error:

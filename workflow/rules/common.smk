@@ -3,12 +3,23 @@ import sys
 from pathlib import Path
 
 # The library, for the Snakefile itself (rule scripts find it through
-# workflow/scripts/_workflow_path.py).
-WORKFLOW_DIR = Path(workflow.basedir) / "workflow"
-sys.path.insert(0, str(WORKFLOW_DIR))
+# workflow/scripts/_workflow_path.py). Found beside this file, not from the
+# working directory, so that the workflow also runs as a module of another
+# workflow (`module ...: snakefile: <this checkout>/Snakefile`).
+_basedir = workflow.current_basedir.get_path_or_uri(secret_free=True)
+if "://" in _basedir:
+    raise WorkflowError(
+        "this workflow imports its Python library (workflow/asteroid_photometry) from beside its rules, "
+        "which needs a local copy: clone the repository and point the module's snakefile at the clone's "
+        f"Snakefile (rules found at {_basedir})"
+    )
+WORKFLOW_DIR = Path(_basedir).resolve().parent
+if str(WORKFLOW_DIR) not in sys.path:
+    sys.path.insert(0, str(WORKFLOW_DIR))
 
 from asteroid_photometry.config import validate_config, ConfigError
 from asteroid_photometry.experiment import image_sets, named_entry
+from asteroid_photometry.shape import get_shape_model_spec
 
 try:
     config.update(validate_config(config))
@@ -91,10 +102,12 @@ def monte_carlo_seed(wildcards):
 
 
 def shape_model_file(wildcards):
-    """The local copy named by shape_model_path, or the verified download."""
+    """The copy named by shape_model_path, else the shipped copy or the verified download (shape_model_source)."""
     if config["shape_model_path"]:
         return config["shape_model_path"]
-    return f"resources/shape/{config['shape_model']}.tab"
+    if config["shape_model_source"] == "download":
+        return f"resources/shape/{config['shape_model']}.tab"
+    return str(get_shape_model_spec(config["shape_model"]).shipped_path)
 
 
 def error_map_set(wildcards):

@@ -4,7 +4,7 @@
 rule tabulate_table1:
     input:
         summaries=expand("results/fits/{set_id}/{method}.json", set_id=BASE_SETS, method=ESTIMATORS),
-        paper=Path(workflow.basedir) / "workflow" / "resources" / "paper_table1.csv",
+        paper=workflow.source_path("../resources/paper_table1.csv"),
     output:
         csv=report("results/tables/table1.csv", caption="../report/table1.rst", category="Tables"),
         markdown="results/tables/table1.md",
