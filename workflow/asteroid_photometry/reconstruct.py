@@ -133,6 +133,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import files
 from .cameras import Intrinsics, camera_centres_body
 
 log = logging.getLogger(__name__)
@@ -615,7 +616,7 @@ class SparseReconstruction:
         model_dir = out_dir / "model"
         model_dir.mkdir(parents=True, exist_ok=True)
         self.model.write(model_dir)
-        (out_dir / "report.json").write_text(json.dumps(self.report.to_dict(), indent=1))
+        files.write_json(out_dir / "report.json", self.report.to_dict())
         priors_path = out_dir / "prior_positions.npy"
         if self.prior_positions is not None:
             np.save(priors_path, self.prior_positions)
