@@ -5,6 +5,7 @@
 #   make venv          the virtual environment $(VENV) from requirements.txt
 #   make sysdeps       the Debian packages Mitsuba's LLVM backend and open3d need
 #   make report        results/report.zip from an existing run
+#   make unlock        release the lock a killed run left (then `make` resumes it)
 #   make lint          snakemake --lint
 #   make clean         remove results/ (Snakemake's .snakemake/ metadata is kept)
 #
@@ -46,7 +47,7 @@ RUN_ENV := export PATH="$(abspath $(VENV))/bin:$$PATH"; \
 SNAKEMAKE := $(VENV)/bin/snakemake --cores $(CORES)
 VENV_STAMP := $(VENV)/.requirements.stamp
 
-.PHONY: reproduce test venv sysdeps report clean lint help
+.PHONY: reproduce test venv sysdeps report unlock clean lint help
 
 reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) --rerun-incomplete $(SNAKEMAKE_ARGS)
@@ -54,6 +55,10 @@ reproduce: sysdeps venv
 
 report: venv
 	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
+
+# A run killed hard (SIGKILL, a lost node, a power cut) leaves Snakemake's lock behind.
+unlock: venv
+	$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) --unlock $(SNAKEMAKE_ARGS)
 
 test: sysdeps venv
 	$(RUN_ENV) $(VENV)/bin/python -m pytest tests -v --durations=10 $(PYTEST_ARGS)
@@ -112,4 +117,4 @@ clean:
 	rm -rf results/
 
 help:
-	@sed -n '2,13s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+	@sed -n '2,14s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))

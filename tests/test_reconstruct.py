@@ -300,3 +300,17 @@ def test_reconstruct_images_end_to_end(sphere_images, tmp_path, use_priors):
     tracks = result.tracks()
     assert set(np.unique(tracks["image"])) <= set(result.registered_indices.tolist())
     assert tracks["point"].max() < report.n_points3d
+
+
+def test_the_same_images_give_the_same_model_bit_for_bit(sphere_images, tmp_path):
+    """Two reconstructions with two extraction threads: image ids in set order, the same cameras and points (issue 13)."""
+    images, intrinsics, poses = sphere_images
+    models = []
+    for run in ("a", "b"):
+        result = rc.reconstruct_images(images, intrinsics, tmp_path / run, true_body_to_camera=poses, use_priors=False, num_threads=2)
+        model = result.model
+        assert sorted((model.image(i).name, i) for i in model.images) == [(rc.image_name(k), k + 1) for k in range(len(images))]
+        models.append((result.body_to_camera(), *result.points3d()))
+    (poses_a, ids_a, xyz_a), (poses_b, ids_b, xyz_b) = models
+    assert poses_a.keys() == poses_b.keys() and all(np.array_equal(poses_a[k], poses_b[k]) for k in poses_a)
+    assert np.array_equal(ids_a, ids_b) and np.array_equal(xyz_a, xyz_b)

@@ -178,8 +178,8 @@ def test_small_run_table2_from_images_alone(small_run):
     # the body); the paper's joint fit on the same samples lets its elevation go (small run: up to 2.1 deg).
     paper_method = table[table.method == "koizumi_lm"]
     assert np.allclose(paper_method.light_dir_err_deg_refined, paper_method.refinement_light_err_deg, atol=1e-9)
-    # Small run: 0.11 and 0.72 deg with priors (the same on every run); 0.35-0.76 without, which varies
-    # from run to run (bundle adjustment without priors is not bit-reproducible). The joint fit: up to 2.5.
+    # Small run: 0.11 and 0.72 deg with priors; 0.35-0.76 without (runs before the image ids were fixed
+    # varied there; now the same config gives the same table, tests/test_resume.py). The joint fit: up to 2.5.
     assert (paper_method[paper_method.priors == "on"].light_dir_err_deg_refined < 1.0).all()
     assert (paper_method.light_dir_err_deg_refined < 2.0).all()
     assert paper_method.light_dir_err_deg_refined_joint.notna().all()

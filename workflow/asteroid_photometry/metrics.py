@@ -24,8 +24,17 @@ from .estimate import FitResult, angle_between_deg, light_angle_deg
 TABLE1_COLUMNS = [
     "set_id", "method", "light_deg_true", "light_deg_est", "light_deg_err", "light_dir_err_deg",
     "albedo_true", "albedo_est", "albedo_err", "albedo_rmse", "k_true", "k_est", "k_err", "k_rmse",
-    "n_points", "n_obs", "fit_seconds", "converged",
+    "n_points", "n_obs", "converged",
 ]
+
+#: Wall-clock columns (``fit_seconds``, ``refit_seconds``, ...) of the per-fit summaries: they change from
+#: run to run, so they stay out of the science tables and go to ``fit_timing.csv`` (:func:`fit_timing_table`).
+TIMING_SUFFIX = "_seconds"
+
+
+def without_timings(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` without its wall-clock columns: the same inputs give the same table."""
+    return table[[c for c in table if not str(c).endswith(TIMING_SUFFIX)]]
 
 
 @dataclass(frozen=True)
@@ -103,14 +112,14 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
         lines += [f"## {method}", ""]
         lines += [
             "| light | albedo | k | light est (paper) | light est (ours) | dir err (ours) | albedo est (paper) | albedo est (ours) "
-            "| albedo RMSE | k est (paper) | k est (ours) | k RMSE | points | obs | fit s |",
-            "|" + "---|" * 15,
+            "| albedo RMSE | k est (paper) | k est (ours) | k RMSE | points | obs |",
+            "|" + "---|" * 14,
         ]
         for _, r in group.iterrows():
             lines.append(
                 f"| {r.light_deg_true:g} | {r.albedo_true:g} | {r.k_true:g} | {_fmt(r.paper_light_deg_est, 4)} | {_fmt(r.light_deg_est, 5)} "
                 f"| {_fmt(r.light_dir_err_deg, 5)} | {_fmt(r.paper_albedo_est, 3)} | {_fmt(r.albedo_est, 5)} | {_fmt(r.albedo_rmse, 5)} "
-                f"| {_fmt(r.paper_k_est, 3)} | {_fmt(r.k_est, 5)} | {_fmt(r.k_rmse, 5)} | {r.n_points} | {r.n_obs} | {_fmt(r.fit_seconds, 2)} |"
+                f"| {_fmt(r.paper_k_est, 3)} | {_fmt(r.k_est, 5)} | {_fmt(r.k_rmse, 5)} | {r.n_points} | {r.n_obs} |"
             )
         worst = group.loc[:, ["light_deg_err", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse"]].abs().max()
         lines += ["", "Worst over the sets (absolute): " + ", ".join(f"{name} {value:.2g}" for name, value in worst.items()), ""]
@@ -126,7 +135,7 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
 def collect_sweep(summary_paths) -> pd.DataFrame:
     """The summary rows of a sweep, with every column they have (Table 1's first)."""
     rows = [json.loads(Path(path).read_text()) for path in summary_paths]
-    table = pd.DataFrame(rows)
+    table = without_timings(pd.DataFrame(rows))
     ordered = [c for c in TABLE1_COLUMNS if c in table] + [c for c in table if c not in TABLE1_COLUMNS]
     return table[ordered].sort_values(["method", "set_id"], kind="stable").reset_index(drop=True)
 
@@ -169,6 +178,22 @@ def runtime_table(benchmark_paths) -> pd.DataFrame:
     totals = table.groupby("stage", as_index=False).agg(seconds=("seconds", "sum"), max_rss_mb=("max_rss_mb", "max"))
     totals["job"] = "TOTAL"
     return pd.concat([table, totals[["stage", "job", "seconds", "max_rss_mb"]]], ignore_index=True)
+
+
+def fit_timing_table(summary_paths) -> pd.DataFrame:
+    """The wall-clock columns of per-fit summaries (``results/fits*/.../<method>.json``), one row per fit.
+
+    ``stage`` and ``job`` name the fit as ``runtime_table`` names its job
+    (``fit``, ``<set_id>/<method>``; ``fit_cloud``, ``<set_id>/priors-<on|off>/<method>``).
+    """
+    rows = []
+    for path in summary_paths:
+        path = Path(path)
+        parts = path.parts[path.parts.index("results") + 1 :] if "results" in path.parts else path.parts[-3:]
+        summary = json.loads(path.read_text())
+        stage = {"fits": "fit", "fits_cloud": "fit_cloud"}.get(parts[0], parts[0])
+        rows.append({"stage": stage, "job": "/".join(parts[1:]).removesuffix(".json"), **{k: v for k, v in summary.items() if k.endswith(TIMING_SUFFIX)}})
+    return pd.DataFrame(rows)
 
 
 def light_error_components_deg(light_est, light_true, spin_axis_cam) -> tuple[float, float]:

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import files
 from .cameras import ImagingGeometry, camera_centres_body, pixel_rays_cam, project
 
 log = logging.getLogger(__name__)
@@ -61,7 +62,7 @@ class ObservationGeometry:
     n_points: int
 
     def save(self, path) -> None:
-        np.savez_compressed(path, **{name: getattr(self, name) for name in self.__dataclass_fields__})
+        files.savez(path, **{name: getattr(self, name) for name in self.__dataclass_fields__})
 
     @classmethod
     def load(cls, path) -> "ObservationGeometry":

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from . import files  # noqa: E402
 from .metrics import TABLE2_BOUNDS, TABLE2_STAGES, with_paper  # noqa: E402
 
 QUANTITIES = {
@@ -47,7 +48,7 @@ def plot_errors_against_paper(table: pd.DataFrame, paper: pd.DataFrame, quantity
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out_path, dpi=120)
+    files.save_figure(fig, out_path, dpi=120)
     plt.close(fig)
 
 
@@ -68,7 +69,7 @@ def plot_per_point_errors(estimates: dict[str, dict], out_path, method: str = "k
     axes[-1].set_xticks(np.arange(1, len(labels) + 1), labels, rotation=60, ha="right", fontsize=7)
     axes[0].set_title(f"Per-point errors of {method}")
     fig.tight_layout()
-    fig.savefig(out_path, dpi=120)
+    files.save_figure(fig, out_path, dpi=120)
     plt.close(fig)
 
 
@@ -126,7 +127,7 @@ def plot_values_on_body(values: dict, title: str, out_path) -> None:
             fig.colorbar(scatter, ax=ax, shrink=0.8)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(out_path, dpi=110)
+    files.save_figure(fig, out_path, dpi=110)
     plt.close(fig)
 
 
@@ -153,7 +154,7 @@ def plot_table2_stages(table: pd.DataFrame, method: str, out_path) -> None:
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Table 2, {method}: errors per set, from the reconstructed cloud to the truth put in part by part")
     fig.tight_layout()
-    fig.savefig(out_path, dpi=110)
+    files.save_figure(fig, out_path, dpi=110)
     plt.close(fig)
 
 
@@ -187,7 +188,7 @@ def plot_geometry_sensitivity(table: pd.DataFrame, out_path) -> None:
     axes[0].legend(fontsize=7)
     fig.suptitle("What the estimator needs from the geometry: errors against the normals' error, and against how the true surface is sampled")
     fig.tight_layout()
-    fig.savefig(out_path, dpi=110)
+    files.save_figure(fig, out_path, dpi=110)
     plt.close(fig)
 
 
@@ -220,5 +221,5 @@ def plot_errors_against_bound(noise_table: pd.DataFrame, out_path) -> None:
     axes[0].legend(fontsize=6)
     fig.suptitle("Noise sweep: observed errors against the Cramér-Rao bound")
     fig.tight_layout()
-    fig.savefig(out_path, dpi=110)
+    files.save_figure(fig, out_path, dpi=110)
     plt.close(fig)

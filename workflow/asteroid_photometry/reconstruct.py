@@ -133,6 +133,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import files
 from .cameras import Intrinsics, camera_centres_body
 
 log = logging.getLogger(__name__)
@@ -615,7 +616,7 @@ class SparseReconstruction:
         model_dir = out_dir / "model"
         model_dir.mkdir(parents=True, exist_ok=True)
         self.model.write(model_dir)
-        (out_dir / "report.json").write_text(json.dumps(self.report.to_dict(), indent=1))
+        files.write_json(out_dir / "report.json", self.report.to_dict())
         priors_path = out_dir / "prior_positions.npy"
         if self.prior_positions is not None:
             np.save(priors_path, self.prior_positions)
@@ -659,6 +660,14 @@ class FeatureOptions:
     min_pose_inlier_ratio: float = 0.1
 
 
+#: Threads of the incremental mapper and of the bundle adjustments. One, for the same model on every
+#: run: Ceres sums the cost and gradient of a multi-threaded evaluation in the order its threads finish
+#: (COLMAP turns threading on above 50000 residuals; these sets have about 12000, so one thread costs
+#: nothing here). Extraction (per image) and matching (per pair) are the same at any thread count, once
+#: the image ids are fixed (``reconstruct_images``).
+MAPPING_THREADS = 1
+
+
 def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: int, seed: int) -> dict:
     import pycolmap
 
@@ -680,7 +689,7 @@ def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: i
     verification.ransac.random_seed = seed
 
     mapping = pycolmap.IncrementalPipelineOptions()
-    mapping.num_threads = num_threads
+    mapping.num_threads = MAPPING_THREADS
     mapping.random_seed = seed
     mapping.extract_colors = False
     # The mapper always holds the intrinsics; "refine" frees the focal lengths in the final
@@ -723,9 +732,10 @@ def reconstruct_images(
     (seed ``prior_seed``) are the navigation priors, and they score the result.
     ``intrinsics_mode`` is ``"fixed"`` (the known intrinsics, never refined) or
     ``"refine"`` (focal lengths refined in the final bundle adjustment).
-    ``num_threads`` -1 uses all cores (COLMAP's convention). ``seed`` seeds
-    pycolmap's RANSACs and mapper; the multi-threaded mapper can still differ
-    by a few points between runs (1520 or 1521 points on the same set).
+    ``num_threads`` (-1: all cores, COLMAP's convention) is for feature
+    extraction and matching; mapping and bundle adjustment run on
+    ``MAPPING_THREADS``. ``seed`` seeds pycolmap's RANSACs and mapper: the
+    same images, settings and seed give the same model, bit for bit.
     """
     import pycolmap
 
@@ -753,6 +763,11 @@ def reconstruct_images(
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "PINHOLE"
     reader.camera_params = f"{intrinsics.focal_px!r},{intrinsics.focal_px!r},{intrinsics.cx!r},{intrinsics.cy!r}"
+    # The images enter the database one by one in set order first: the extractor numbers images in the
+    # order its threads finish them, and the mapper's choices (initial pair, next image) follow the ids.
+    with pycolmap.Database.open(database_path):  # a new, empty database
+        pass
+    pycolmap.import_images(database_path, image_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader)
     pycolmap.extract_features(
         database_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
         reader_options=reader, extraction_options=options["extraction"], device=pycolmap.Device.cpu,
@@ -797,7 +812,7 @@ def reconstruct_images(
     priors_by_image_id = {image_id: prior_centres[index] for image_id, index in index_by_image_id.items()} if use_priors else None
     bundle_adjust(
         model, priors_by_image_id, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px,
-        refine_intrinsics=intrinsics_mode == "refine", num_threads=num_threads, seed=seed,
+        refine_intrinsics=intrinsics_mode == "refine", num_threads=MAPPING_THREADS, seed=seed,
     )
     stage_seconds["final_bundle_adjustment"] = time.perf_counter() - tick
 

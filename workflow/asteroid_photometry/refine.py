@@ -56,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cloud as cloud_lib
+from . import files
 from .cameras import Intrinsics
 from .estimate import Observations, angle_between_deg, fit_pooled_k
 
@@ -216,7 +217,7 @@ class PureSampleCloud:
     def save(self, path) -> None:
         """One .npz with the arrays."""
         obs = self.observations
-        np.savez_compressed(
+        files.savez(
             path, points=self.points, normals=self.normals, surface_normals=self.surface_normals, point_index=obs.point_index,
             normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness, image_index=self.image_index,
             offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, light_dir_cam=self.light_dir_cam,

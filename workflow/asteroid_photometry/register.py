@@ -577,6 +577,10 @@ def register_to_shape(
     """
     import open3d as o3d
 
+    # One thread for open3d, process-wide: its point-to-plane ICP sums over the points on TBB threads
+    # in the order they finish, so with more the registration differs in the last bits from run to run
+    # (and the rules that register have one thread).
+    o3d.utility.set_max_threads(1)
     reg = o3d.pipelines.registration
     start = time.perf_counter()
     points = _as_points(points)

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import files
 from .cameras import ImagingGeometry
 
 log = logging.getLogger(__name__)
@@ -356,7 +357,7 @@ def render_image_set(
             metadata["facet_maps"] = str(facet_maps_path.resolve().relative_to(out_dir.resolve()))
         except ValueError:
             metadata["facet_maps"] = str(facet_maps_path)
-    (out_dir / "frames.json").write_text(json.dumps(metadata, indent=1))
+    files.write_json(out_dir / "frames.json", metadata)  # last: a set without it is incomplete
     return metadata
 
 

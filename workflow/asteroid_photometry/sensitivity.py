@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from . import cloud as cloud_lib
-from . import estimate, metrics
+from . import estimate, files, metrics
 from .cameras import Intrinsics
 from .experiment import ImageSet
 from .metrics import TABLE2_BOUNDS
@@ -154,16 +154,15 @@ def sensitivity_set(observations_npz, render_dir, shape_npz, image_set: ImageSet
         )
         rows.append(_row(set_id, variant, 0.0, 0.0, run_estimator(obs, method, image_set), facet_truth))
         log.info("%s samples of the true surface: %s", variant, rows[-1])
-    pd.DataFrame(rows, columns=COLUMNS).to_csv(out_csv, index=False)
+    files.write_csv(pd.DataFrame(rows, columns=COLUMNS), out_csv)
 
 
 def write_table(csv_paths, out_csv, out_markdown, out_plot) -> None:
     from .plots import plot_geometry_sensitivity
 
     table = pd.concat([pd.read_csv(path) for path in csv_paths], ignore_index=True)
-    table.to_csv(out_csv, index=False)
-    with open(out_markdown, "w") as stream:
-        stream.write(sensitivity_markdown(table))
+    files.write_csv(table, out_csv)
+    files.write_text(out_markdown, sensitivity_markdown(table))
     plot_geometry_sensitivity(table, out_plot)
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import cameras, estimate, metrics, noise, observe, render, surface_maps
+from . import cameras, estimate, files, metrics, noise, observe, render, surface_maps
 from .experiment import ImageSet
 
 log = logging.getLogger(__name__)
@@ -35,7 +35,7 @@ def write_imaging_geometry(shape_npz, out_json, n_images, image_size, camera_dis
         n_images, image_size, camera_distance_km, geometry.intrinsics.fov_x_deg,
         geometry.camera_distance_m / geometry.intrinsics.focal_px,
     )
-    Path(out_json).write_text(geometry.to_json())
+    files.write_text(out_json, geometry.to_json())
 
 
 def load_imaging_geometry(path) -> cameras.ImagingGeometry:
@@ -46,26 +46,32 @@ FACET_MAPS_FILE = "facet_maps.npz"
 
 
 def render_set(shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, mitsuba_variant, out_dir, threads=None, surface_map: dict | None = None) -> None:
-    """Render one set; with ``surface_map`` (a ``surface_maps`` entry) its per-facet truth goes beside the images."""
+    """Render one set; with ``surface_map`` (a ``surface_maps`` entry) its per-facet truth goes beside the images.
+
+    The set is rendered into a temporary directory that replaces ``out_dir``
+    when complete (``files.partial_directory``).
+    """
     shape = load_shape_npz(shape_npz)
     geometry = load_imaging_geometry(cameras_json)
     if threads:
         import drjit as dr
 
         dr.set_thread_count(int(threads))
-    albedo, minnaert_k, maps_path = image_set.albedo, image_set.minnaert_k, None
+    albedo, minnaert_k, with_maps = image_set.albedo, image_set.minnaert_k, False
     if surface_map is not None:
         keys = surface_maps.SPEC_KEYS[surface_map["kind"]]
         spec = {key: value for key, value in surface_map.items() if key in keys}
         albedo, minnaert_k = surface_maps.facet_maps(shape["centroids_m"], spec, surface_map.get("seed", 0), image_set.albedo, image_set.minnaert_k)
-        maps_path = Path(out_dir) / FACET_MAPS_FILE
+        with_maps = True
+    part = files.partial_directory(out_dir)
     render.render_image_set(
         shape["vertices_m"], shape["faces"], geometry,
         albedo=albedo, minnaert_k=minnaert_k,
         light_dir_cam=cameras.light_dir_cam(image_set.light_angle_deg),
-        spp=samples_per_pixel, out_dir=out_dir, seed=image_set.seed, variant=mitsuba_variant,
-        facet_maps_path=maps_path,
+        spp=samples_per_pixel, out_dir=part, seed=image_set.seed, variant=mitsuba_variant,
+        facet_maps_path=part / FACET_MAPS_FILE if with_maps else None,
     )
+    files.move_into_place(part, out_dir)
 
 
 def write_linear_exr(path, image: np.ndarray) -> None:
@@ -80,19 +86,19 @@ def add_noise_to_set(clean_dir, sensor_entry: dict, seed: int, out_dir) -> None:
     """The clean set's images as the sensor of ``sensor_entry`` (a ``noise_levels`` entry) records them."""
     sensor = noise.sensor_from_config(sensor_entry)
     frames, images = read_rendered_images(clean_dir)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     n_saturated = 0
+    part = files.partial_directory(out_dir)
     for image, entry in zip(images, frames["images"]):
         noisy = noise.apply_sensor_noise(image, sensor, rng)
         n_saturated += int(noise.saturated(noisy, sensor).sum())
-        write_linear_exr(out_dir / entry["file"], noisy)
+        write_linear_exr(part / entry["file"], noisy)
     if (Path(clean_dir) / FACET_MAPS_FILE).exists():
-        shutil.copy2(Path(clean_dir) / FACET_MAPS_FILE, out_dir / FACET_MAPS_FILE)
+        shutil.copy2(Path(clean_dir) / FACET_MAPS_FILE, part / FACET_MAPS_FILE)
     frames["sensor"] = sensor.to_dict()
     frames["noise_seed"] = int(seed)
-    (out_dir / "frames.json").write_text(json.dumps(frames, indent=1))
+    (part / "frames.json").write_text(json.dumps(frames, indent=1))
+    files.move_into_place(part, out_dir)
     log.info("sensor %s on %d images (seed %d): %d saturated pixels", sensor.to_dict(), len(images), seed, n_saturated)
 
 
@@ -156,7 +162,7 @@ def observation_arrays(obs_geometry: observe.ObservationGeometry, frames: dict, 
 def write_observations(geometry_npz, render_dir, out_npz) -> None:
     """The brightness of every observation, sampled from the rendered images, with its geometry."""
     frames, images = read_rendered_images(render_dir)
-    np.savez_compressed(out_npz, **observation_arrays(observe.ObservationGeometry.load(geometry_npz), frames, images, render_dir))
+    files.savez(out_npz, **observation_arrays(observe.ObservationGeometry.load(geometry_npz), frames, images, render_dir))
 
 
 def load_observations(path) -> tuple[estimate.Observations, dict]:
@@ -206,11 +212,11 @@ def fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, o
         name: value for name in ("albedo_std", "minnaert_k_std", "albedo_k_cov", "light_cov_tangent")
         if (value := getattr(result, name, None)) is not None
     }
-    np.savez_compressed(
+    files.savez(
         out_estimates, light_dir_cam=result.light_dir_cam, albedo=result.albedo, minnaert_k=result.minnaert_k,
         albedo_true=arrays["albedo_true"], minnaert_k_true=arrays["minnaert_k_true"], **uncertainty,
     )
-    Path(out_summary).write_text(json.dumps(row, indent=1))
+    files.write_json(out_summary, row)
 
 
 def cramer_rao_summary(obs: estimate.Observations, arrays: dict, result) -> dict:
@@ -243,8 +249,8 @@ def cramer_rao_summary(obs: estimate.Observations, arrays: dict, result) -> dict
 def write_table1(summary_paths, paper_csv, out_csv, out_markdown) -> None:
     table = metrics.collect_table1(summary_paths)
     paper = pd.read_csv(paper_csv)
-    table.to_csv(out_csv, index=False)
-    Path(out_markdown).write_text(metrics.table1_markdown(table, paper))
+    files.write_csv(table, out_csv)
+    files.write_text(out_markdown, metrics.table1_markdown(table, paper))
     log.info("Table 1: %d rows", len(table))
 
 
@@ -263,16 +269,18 @@ def write_table1_plots(table_csv, estimate_paths, outputs) -> None:
     plots.plot_per_point_errors(estimates, outputs["per_point"])
 
 
-def write_runtime_table(benchmark_paths, out_csv) -> None:
+def write_runtime_table(benchmark_paths, summary_paths, out_csv, out_fit_timing_csv) -> None:
+    """Seconds and memory of every benchmarked job; the wall-clock seconds the fits report of themselves beside it."""
     table = metrics.runtime_table(benchmark_paths)
-    table.to_csv(out_csv, index=False)
+    files.write_csv(table, out_csv)
+    files.write_csv(metrics.fit_timing_table(summary_paths), out_fit_timing_csv)
     log.info("runtime per stage (s): %s", table[table.job == "TOTAL"].set_index("stage")["seconds"].round(1).to_dict())
 
 
 def write_sweep_table(summary_paths, sweep: str, out_csv, out_markdown) -> None:
     table = metrics.collect_sweep(summary_paths)
-    table.to_csv(out_csv, index=False)
-    Path(out_markdown).write_text(metrics.sweep_markdown(table, sweep))
+    files.write_csv(table, out_csv)
+    files.write_text(out_markdown, metrics.sweep_markdown(table, sweep))
     log.info("%s sweep: %d rows", sweep, len(table))
 
 
@@ -314,13 +322,13 @@ def noise_monte_carlo_set(geometry_npz, clean_dir, sensor_entry: dict, base_seed
         row.update(noise_level=sensor.name, draw=draw, **cramer_rao_summary(obs, arrays, result))
         log.info("draw %d: light %.3f deg (%.2f sigma), efficiency albedo %.2f, k %.2f", draw, row["light_dir_err_deg"], row["light_err_sigma"], row["efficiency_albedo"], row["efficiency_k"])
         rows.append(row)
-    pd.DataFrame(rows).to_csv(out_csv, index=False)
+    files.write_csv(metrics.without_timings(pd.DataFrame(rows)), out_csv)
 
 
 def write_monte_carlo_table(draw_csvs, out_csv, out_markdown) -> None:
     table = metrics.monte_carlo_summary(pd.concat([pd.read_csv(path) for path in draw_csvs], ignore_index=True))
-    table.to_csv(out_csv, index=False)
-    Path(out_markdown).write_text(metrics.monte_carlo_markdown(table))
+    files.write_csv(table, out_csv)
+    files.write_text(out_markdown, metrics.monte_carlo_markdown(table))
     log.info("noise Monte Carlo: %d sets", len(table) - 1)
 
 

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from . import cloud as cloud_lib
-from . import estimate, metrics, quality, reconstruct, refine, register
+from . import estimate, files, metrics, quality, reconstruct, refine, register
 from .cameras import Intrinsics
 from .stages import FACET_MAPS_FILE, load_shape_npz, read_rendered_images
 
@@ -60,9 +60,10 @@ def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, thr
     and recorded in the report's settings.
     """
     attempts = []
+    part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     for seed in range(MAX_MAPPER_SEEDS):
         result = reconstruct.reconstruct_set(
-            render_dir, Path(out_dir) / "work",
+            render_dir, part / "work",
             intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
             camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
             prior_seed=settings["prior_seed"], num_threads=threads, seed=seed,
@@ -76,7 +77,8 @@ def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, thr
             break
         log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
     result.report.settings["mapper_attempts"] = attempts
-    result.write(out_dir)
+    result.write(part)
+    files.move_into_place(part, out_dir)
     log.info("reconstruction: %s", json.dumps(result.report.to_dict()))
 
 
@@ -90,7 +92,7 @@ def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_j
     in_body_frame = recon.report.world_frame == "body"
     result = register.register_to_shape(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], estimate_scale=not in_body_frame)
     scores = quality.reconstruction_quality(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], transform=result.transform)
-    np.savez_compressed(out_npz, points=oriented.points, normals=oriented.normals, track_length=oriented.track_length, transform=result.transform)
+    files.savez(out_npz, points=oriented.points, normals=oriented.normals, track_length=oriented.track_length, transform=result.transform)
     summary = {
         "registration_ok": bool(result.success),
         "registration_seconds": float(result.seconds_global + result.seconds_icp),
@@ -102,7 +104,7 @@ def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_j
         "normal_err_deg_median": scores.normal_error_median_deg,
         "n_cloud_points": int(len(oriented.points)),
     }
-    Path(out_json).write_text(json.dumps(summary, indent=1))
+    files.write_json(out_json, summary)
     log.info("registration and quality: %s", summary)
 
 
@@ -322,8 +324,8 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
     row.update(json.loads(Path(registration_json).read_text()))
     if row.get("registration_ok"):
         row.update(oracle_rows(method, oriented, transform, surface_body, facets, truth, shape, frames, recon, images, settings, known_k))
-    Path(out_json).write_text(json.dumps(row, indent=1))
-    np.savez_compressed(
+    files.write_json(out_json, row)
+    files.savez(
         out_npz, points_body=points_body, albedo_error=before.albedo - albedo_true, k_error=before.minnaert_k - k_true,
         normal_error_deg=normals_before, points_body_refined=refined_body,
         albedo_error_refined=after.albedo - albedo_true_refined, k_error_refined=after.minnaert_k - k_true_refined,
@@ -337,10 +339,10 @@ TABLE2_LEAD = ["set_id", "priors", "method"]
 
 def write_table2(summary_paths, out_csv, out_markdown) -> None:
     rows = [json.loads(Path(path).read_text()) for path in summary_paths]
-    table = pd.DataFrame(rows)
+    table = metrics.without_timings(pd.DataFrame(rows))
     table = table[TABLE2_LEAD + [c for c in table if c not in TABLE2_LEAD]].sort_values(TABLE2_LEAD, kind="stable")
-    table.to_csv(out_csv, index=False)
-    Path(out_markdown).write_text(table2_markdown(table))
+    files.write_csv(table, out_csv)
+    files.write_text(out_markdown, table2_markdown(table))
 
 
 def table2_markdown(table: pd.DataFrame) -> str:
