@@ -29,37 +29,29 @@ TRIM = [
 SCIENCE_TABLES = ["table1.csv", "table1.md", "table2.csv", "table2.md"]
 
 
-@pytest.fixture(scope="module")
-def shape_model():
-    path = REPO.parent / "shared" / "data" / "itokawa" / "itokawa_low.obj"
-    if not path.is_file():
-        pytest.skip(f"{path} is absent: the shape model is read from there")
-    return path
-
-
-def command(workdir, shape_model, *extra):
+def command(workdir, *extra):
     """The README's command (`make reproduce`'s: --rerun-incomplete) on the trimmed small config."""
     return [
         sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--cores", "2", "-d", str(workdir),
-        "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shape_model}", *TRIM,
+        "--configfile", str(REPO / "config" / "test.yaml"), "--config", *TRIM,
         "--rerun-incomplete", *extra,
     ]
 
 
-def run_to_end(workdir, shape_model):
-    run = subprocess.run(command(workdir, shape_model), cwd=REPO, capture_output=True, text=True, timeout=900)
+def run_to_end(workdir):
+    run = subprocess.run(command(workdir), cwd=REPO, capture_output=True, text=True, timeout=900)
     assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
     return workdir
 
 
 @pytest.fixture(scope="module")
-def first_run(shape_model, tmp_path_factory):
-    return run_to_end(tmp_path_factory.mktemp("first_run"), shape_model)
+def first_run(tmp_path_factory):
+    return run_to_end(tmp_path_factory.mktemp("first_run"))
 
 
 @pytest.fixture(scope="module")
-def second_run(shape_model, tmp_path_factory, first_run):
-    return run_to_end(tmp_path_factory.mktemp("second_run"), shape_model)
+def second_run(tmp_path_factory, first_run):
+    return run_to_end(tmp_path_factory.mktemp("second_run"))
 
 
 def test_same_config_twice_gives_the_same_tables(first_run, second_run):
@@ -79,16 +71,16 @@ def test_same_config_twice_gives_the_same_tables(first_run, second_run):
     assert (cloud.fit_seconds > 0).all() and (cloud.refit_seconds > 0).all() and (cloud.registration_seconds > 0).all()
 
 
-def _start(workdir, shape_model, log_path):
+def _start(workdir, log_path):
     """The workflow in its own process group (a SIGKILL to the group takes its jobs with it), output to ``log_path``.
 
     After a kill the README's two commands: ``--unlock`` (a killed Snakemake leaves its lock), then the run.
     """
     if (workdir / ".snakemake" / "locks").is_dir():
-        unlock = subprocess.run(command(workdir, shape_model, "--unlock"), cwd=REPO, capture_output=True, text=True, timeout=300)
+        unlock = subprocess.run(command(workdir, "--unlock"), cwd=REPO, capture_output=True, text=True, timeout=300)
         assert unlock.returncode == 0, unlock.stdout[-3000:] + unlock.stderr[-3000:]
     log = open(log_path, "w")
-    return subprocess.Popen(command(workdir, shape_model), cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True), log
+    return subprocess.Popen(command(workdir), cwd=REPO, stdout=log, stderr=subprocess.STDOUT, start_new_session=True), log
 
 
 def _kill_when(process, log, condition, what, timeout=600):
@@ -132,32 +124,32 @@ def _nothing_half_written(workdir):
             assert path.read_text().endswith("\n"), path
 
 
-def _declared_outputs(workdir, shape_model):
+def _declared_outputs(workdir):
     """Every output file and directory of the workflow, from Snakemake's --summary."""
-    run = subprocess.run(command(workdir, shape_model, "--summary"), cwd=REPO, capture_output=True, text=True, timeout=300)
+    run = subprocess.run(command(workdir, "--summary"), cwd=REPO, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     lines = [line.split("\t") for line in run.stdout.splitlines()]
     return {workdir / fields[0] for fields in lines[1:] if fields and fields[0]}
 
 
-def test_killed_run_resumes_to_the_same_tables(first_run, shape_model, tmp_path):
+def test_killed_run_resumes_to_the_same_tables(first_run, tmp_path):
     workdir = tmp_path / "killed"
     render_part = workdir / "results" / "render" / f".{SET_ID}.partial"
 
     # 1. Killed in the middle of the render: some images written, the set not complete.
-    process, log = _start(workdir, shape_model, tmp_path / "run1.log")
+    process, log = _start(workdir, tmp_path / "run1.log")
     _kill_when(process, log, lambda: len(list(render_part.glob("*.exr"))) >= 5, "render halfway")
     assert not (workdir / "results" / "render" / SET_ID).exists(), "a half-rendered set is visible under its real name"
     _nothing_half_written(workdir)
 
     # 2. Restarted, killed again in the middle of a fit (its job started, its outputs not yet there).
-    process, log = _start(workdir, shape_model, tmp_path / "run2.log")
+    process, log = _start(workdir, tmp_path / "run2.log")
     _kill_when(process, log, lambda: _running_fit(workdir) is not None, "a fit running")
     _nothing_half_written(workdir)
 
     # 3. Restarted with the same commands: it completes, with the uninterrupted run's tables.
     assert list((workdir / ".snakemake" / "locks").glob("*.lock")), "the killed run left no lock (then the README need not say --unlock)"
-    process, log = _start(workdir, shape_model, tmp_path / "run3.log")
+    process, log = _start(workdir, tmp_path / "run3.log")
     log.close()
     assert process.wait(timeout=1800) == 0, (tmp_path / "run3.log").read_text()[-5000:]
     for name in SCIENCE_TABLES:
@@ -166,11 +158,11 @@ def test_killed_run_resumes_to_the_same_tables(first_run, shape_model, tmp_path)
     assert not [p for p in (workdir / "results").rglob("*.partial*")], "temporary files left behind"
     assert not list((workdir / ".snakemake" / "incomplete").glob("*")), "Snakemake still marks outputs incomplete"
     # No job wrote outside its declared outputs.
-    declared = _declared_outputs(workdir, shape_model)
+    declared = _declared_outputs(workdir)
     for path in (workdir / "results").rglob("*"):
         if path.is_file():
             assert any(path == output or output in path.parents for output in declared), f"{path} is no declared output"
-    dry = subprocess.run(command(workdir, shape_model, "-n"), cwd=REPO, capture_output=True, text=True, timeout=300)
+    dry = subprocess.run(command(workdir, "-n"), cwd=REPO, capture_output=True, text=True, timeout=300)
     assert "Nothing to be done" in dry.stdout + dry.stderr
 
 
