@@ -73,20 +73,20 @@ def geometry_cosines(normal, light, view):
 # --------------------------------------------------------------------------
 
 
-def _lambert(p, cos_i, cos_o, cos_g, ops):
+def _lambert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
     return p["albedo"] * cos_i
 
 
-def _lommel_seeliger(p, cos_i, cos_o, cos_g, ops):
+def _lommel_seeliger(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
     return p["albedo"] * 2.0 * cos_i / (cos_i + cos_o)
 
 
-def _lunar_lambert(p, cos_i, cos_o, cos_g, ops):
+def _lunar_lambert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
     lunar_l = p["lunar_l"]
     return p["albedo"] * (2.0 * lunar_l * cos_i / (cos_i + cos_o) + (1.0 - lunar_l) * cos_i)
 
 
-def _minnaert(p, cos_i, cos_o, cos_g, ops):
+def _minnaert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
     k = p["minnaert_k"]
     return p["albedo"] * ops.exp(k * ops.log(cos_i) + (k - 1.0) * ops.log(cos_o))
 
@@ -104,7 +104,7 @@ def _chandrasekhar_h(x, w, ops):
     return 1.0 / (1.0 - w * x * (r0 + (1.0 - 2.0 * r0 * x) * 0.5 * ops.log((1.0 + x) / x)))
 
 
-def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scattering=True):
+def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scattering=True, one_minus_cos_g=None):
     """Hapke's radiance factor with shadow-hiding opposition and macroscopic roughness.
 
     The formulation is the one of Hapke's 1993 book (Theory of Reflectance
@@ -129,13 +129,18 @@ def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scatte
     ``multiple_scattering=False`` drops the ``H H - 1`` term (the
     single-scattering limit); with roughness 0, ``hg_b`` 0 and ``b0`` 0 the
     law is then ``w / 8`` times Lommel-Seeliger's.
+
+    ``one_minus_cos_g``, where given, is ``1 - cos g`` computed without
+    cancellation (the renderer's float32 cos g near 1 resolves g only to
+    0.02 deg, too coarse for the opposition surge at phase 0).
     """
     w, b0, h = p["w"], p["b0"], p["h"]
     mu0 = ops.maximum(cos_i, COS_FLOOR)
     mu = ops.maximum(cos_o, COS_FLOOR)
     cos_g = _clip(ops, cos_g, -1.0, 1.0)
     # tan(g/2) = sqrt((1 - cos g) / (1 + cos g)).
-    tan_half_g = ops.sqrt((1.0 - cos_g) / ops.maximum(1.0 + cos_g, COS_FLOOR))
+    versine = (1.0 - cos_g) if one_minus_cos_g is None else ops.maximum(one_minus_cos_g, 0.0)
+    tan_half_g = ops.sqrt(versine / ops.maximum(2.0 - versine, COS_FLOOR))
     opposition = b0 / (1.0 + tan_half_g / h)
     hg_b, hg_c = p["hg_b"], p["hg_c"]
     phase = 0.5 * (1.0 + hg_c) * _henyey_greenstein(cos_g, hg_b, ops) + 0.5 * (1.0 - hg_c) * _henyey_greenstein(cos_g, -hg_b, ops)
@@ -181,8 +186,8 @@ def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scatte
     return 0.25 * w * mu0e / (mu0e + mue) * scattering * shadowing
 
 
-def _hapke(p, cos_i, cos_o, cos_g, ops):
-    return hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops, multiple_scattering=bool(p.get("multiple_scattering", True)))
+def _hapke(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
+    return hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops, multiple_scattering=bool(p.get("multiple_scattering", True)), one_minus_cos_g=one_minus_cos_g)
 
 
 # --------------------------------------------------------------------------
@@ -221,15 +226,18 @@ class PhotometricModel:
             checked[name] = value if value.ndim else float(value)
         return checked
 
-    def radiance_factor(self, params: dict, cos_i, cos_o, cos_g, ops=NUMPY_OPS):
-        """``b`` for every row (numpy arrays broadcast; Dr.Jit arrays with ``ops=drjit_ops()``)."""
+    def radiance_factor(self, params: dict, cos_i, cos_o, cos_g, ops=NUMPY_OPS, one_minus_cos_g=None):
+        """``b`` for every row (numpy arrays broadcast; Dr.Jit arrays with ``ops=drjit_ops()``).
+
+        ``one_minus_cos_g``: optional, ``1 - cos_g`` free of cancellation (the renderer's).
+        """
         if ops is NUMPY_OPS:
             cos_i = np.maximum(np.asarray(cos_i, dtype=np.float64), COS_FLOOR)
             cos_o = np.maximum(np.asarray(cos_o, dtype=np.float64), COS_FLOOR)
             cos_g = np.asarray(cos_g, dtype=np.float64)
         else:
             cos_i, cos_o = ops.maximum(cos_i, COS_FLOOR), ops.maximum(cos_o, COS_FLOOR)
-        return self.law(params, cos_i, cos_o, cos_g, ops)
+        return self.law(params, cos_i, cos_o, cos_g, ops, one_minus_cos_g)
 
     def jacobian(self, params: dict, cos_i, cos_o, cos_g, names, step=1e-6, central=True):
         """Finite-difference derivatives of ``b`` with respect to ``names``.

@@ -65,8 +65,10 @@ def register_photometric_plugin():
             cos_o = mi.Frame3f.cos_theta(si.wi)
             cos_i = mi.Frame3f.cos_theta(wo)
             cos_g = dr.dot(si.wi, wo)
+            # 1 - cos g from the chord between the two directions: exact for small phase angles in float32.
+            one_minus_cos_g = 0.5 * dr.squared_norm(si.wi - wo)
             valid = active & (cos_o > 0.0) & (cos_i > 0.0)
-            value = self.law.radiance_factor(self.params, cos_i, cos_o, cos_g, ops) * dr.inv_pi
+            value = self.law.radiance_factor(self.params, cos_i, cos_o, cos_g, ops, one_minus_cos_g) * dr.inv_pi
             return dr.select(valid, value, 0.0)
 
         def sample(self, ctx, si, sample1, sample2, active):

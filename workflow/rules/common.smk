@@ -9,6 +9,7 @@ sys.path.insert(0, str(WORKFLOW_DIR))
 
 from asteroid_photometry.config import validate_config, ConfigError
 from asteroid_photometry.experiment import image_sets, named_entry
+from asteroid_photometry.mismatch import model_sets
 
 try:
     config.update(validate_config(config))
@@ -46,6 +47,10 @@ def reconstruction_settings(stage):
 
 
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
+# The model-mismatch experiment's sets ({name: (law, light angle)}), and the light angle of every light tag.
+MODEL_SETS = model_sets(config["model_mismatch"], config["light_angles_deg"]) if config["model_mismatch"]["enabled"] else {}
+LIGHT_ANGLE_OF_TAG = {s.light_tag: s.light_angle_deg for s in SETS.values()}
+LIGHT_ANGLE_OF_TAG.update({f"light{angle:g}": angle for _, angle in MODEL_SETS.values()})
 ESTIMATORS = config["estimators"]
 # Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.
 TABLE2_PLOT_METHOD = "koizumi_lm" if "koizumi_lm" in ESTIMATORS else ESTIMATORS[0]
