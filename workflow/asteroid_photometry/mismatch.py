@@ -131,14 +131,17 @@ def fisher_rows(obs: Observations, model: str, truth: dict, placement: dict, lig
     """Cramer-Rao standard deviations of each parameter of ``model`` placed per point and globally.
 
     The configured placement first; then each parameter the placement does
-    not fit per point, moved per point, and each it holds, freed globally
-    (the others as configured); and for Hapke all held ones freed together.
+    not fit per point, moved per point, each it holds freed globally, each
+    per-point one but the scale made global (the others as configured); and
+    for Hapke all held ones freed together.
     """
     law = photometry.get_model(model)
     per_point, global_ = list(placement.get("per_point", [])), list(placement.get("global", []))
     candidates = [("configured", per_point, global_)]
     for name in law.parameters:
         if name in per_point:
+            if name != law.parameters[0]:  # the scale (albedo, w) stays per point
+                candidates.append((f"{name} global", [p for p in per_point if p != name], global_ + [name]))
             continue
         candidates.append((f"{name} per point", per_point + [name], [g for g in global_ if g != name]))
         if name not in global_:
