@@ -2,43 +2,6 @@
 # each; Hapke over a phase-angle sweep fitted with the paper's Minnaert
 # estimator (results/tables/model_mismatch.*).
 
-MODEL_SETTINGS = config["model_mismatch"]
-# Table 1's light angles carry the cross-fits; the Hapke sets carry the phase sweep.
-CROSS_FIT_SETS = [name for name, (law, angle) in MODEL_SETS.items() if angle in [float(a) for a in config["light_angles_deg"]]]
-SWEEP_SETS = [name for name, (law, angle) in MODEL_SETS.items() if law == "hapke" and angle in [float(a) for a in MODEL_SETTINGS["phase_angles_deg"]]]
-# The sensor of the noisy cross-fits; none when noise_level is null or noise_levels empty.
-MODEL_SENSOR = (
-    named_entry(config, "noise_levels", MODEL_SETTINGS["noise_level"])
-    if MODEL_SETS and MODEL_SETTINGS["noise_level"] and config["noise_levels"]
-    else None
-)
-MODEL_BENCHMARKS = [
-    *expand("benchmarks/render_model_set/{model_set}.tsv", model_set=MODEL_SETS),
-    *expand("benchmarks/fit_model_set/{model_set}.tsv", model_set=CROSS_FIT_SETS),
-    *expand("benchmarks/phase_sweep_set/{model_set}.tsv", model_set=SWEEP_SETS),
-]
-
-
-def model_set_law(wildcards):
-    return MODEL_SETS[wildcards.model_set][0]
-
-
-def model_set_angle(wildcards):
-    return MODEL_SETS[wildcards.model_set][1]
-
-
-def model_set_geometry(wildcards):
-    return f"results/observations/geometry_light{MODEL_SETS[wildcards.model_set][1]:g}.npz"
-
-
-def model_set_seed(wildcards):
-    """Each set's own seed, from the experiment's seed and the set's name."""
-    return (MODEL_SETTINGS["seed"] * 1_000_003 + sorted(MODEL_SETS).index(wildcards.model_set)) % 2**32
-
-
-wildcard_constraints:
-    model_set="(" + "|".join(MODEL_SETTINGS["models"]) + ")_light[^/_]+",
-
 
 rule render_model_set:
     input:
