@@ -244,27 +244,26 @@ def test_small_run_model_mismatch(small_run):
         assert (small_run / name).stat().st_size > 0, name
     # Identity fits on Table 1's geometry: each law rendered and fitted back.
     identity = table[table.experiment == "identity"].set_index(["render_model", "light_angle_deg"])
-    assert len(identity) == 3 * 2
-    for law in ("lambert", "minnaert"):
-        assert (identity.loc[law].light_err_deg < 0.003).all() and (identity.loc[law].max_param_err < 0.001).all(), law
-    # Hapke: at 10 deg within the bounds; at phase 0 its roughness is flat in the cost (small run: 0.002 deg off).
+    assert len(identity) == 2 * 2
+    assert (identity.loc["minnaert"].light_err_deg < 0.003).all() and (identity.loc["minnaert"].max_param_err < 0.001).all()
+    # Hapke: at 10 deg within the bounds; at phase 0 its roughness is flat in the cost (full run: 0.0015 deg off).
     hapke = identity.loc["hapke"]
     assert hapke.loc[10.0].light_err_deg < 0.003 and hapke.loc[10.0].max_param_err < 0.001
     assert hapke.loc[0.0].light_err_deg < 0.003 and hapke.loc[0.0].max_param_err < 0.01
-    # The cross-fit matrix: every law on every rendering, noiseless and noisy; BIC picks the rendering law
-    # wherever the laws differ by more than the noise.
+    # The cross-fit matrix: every law on every rendering, noiseless and noisy; BIC picks the rendering law.
     cross = table[table.experiment == "cross_fit"]
-    assert len(cross) == 3 * 2 * 3 * 2
+    assert len(cross) == 2 * 2 * 2 * 2
     noisy = cross[cross.noise == "amica12"]
     for (law, angle), cells in noisy.groupby(["render_model", "light_angle_deg"]):
         assert cells.set_index("fit_model").bic.idxmin() == law, (law, angle)
-    assert cross[(cross.noise == "none") & (cross.render_model == "hapke") & (cross.fit_model == "lambert")].residual_rms.min() > 0.01
+    clean = cross[cross.noise == "none"].set_index(["render_model", "light_angle_deg", "fit_model"])
+    assert clean.loc[("hapke", 0.0, "minnaert")].residual_rms > 0.005 > clean.loc[("hapke", 0.0, "hapke")].residual_rms
     # Minnaert k of a Hapke surface: from the images and from the law directly, the same.
-    sweep = table[table.experiment == "phase_sweep"].sort_values("light_angle_deg")
-    assert list(sweep.light_angle_deg) == [10.0, 30.0]
+    sweep = table[table.experiment == "phase_sweep"]
+    assert list(sweep.light_angle_deg) == [10.0]
     assert (sweep.k_images_minus_law.abs() < 0.01).all()
     assert (sweep.light_err_deg > 0.5).all()  # the Minnaert fit's light is off on a Hapke surface
-    # The Fisher rows: the configured placement, and the alternatives.
+    # The Fisher rows: Hapke's roughness per point is far less certain than one for the body.
     fisher = table[table.experiment == "fisher"]
     rough = fisher[(fisher.render_model == "hapke") & (fisher.parameter == "roughness_deg")]
     assert rough[rough.per_point == True].crb_std.min() > 5 * rough[rough.placement == "configured"].crb_std.max()  # noqa: E712

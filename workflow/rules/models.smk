@@ -36,7 +36,7 @@ rule fit_model_set:
     params:
         law=model_set_law,
         light_angle_deg=model_set_angle,
-        settings=MODEL_SETTINGS,
+        settings={key: MODEL_SETTINGS[key] for key in ("models", "parameters", "fit", "cross_fit_points", "max_iterations", "fisher_sigma")},
         sensor=MODEL_SENSOR,
         seed=model_set_seed,
     log:
