@@ -14,6 +14,7 @@ include: "workflow/rules/observe.smk"
 include: "workflow/rules/fit.smk"
 include: "workflow/rules/tabulate.smk"
 include: "workflow/rules/reconstruct.smk"
+include: "workflow/rules/models.smk"
 
 
 # The optional outputs, each only when its part of the experiment is configured.
@@ -22,6 +23,7 @@ OPTIONAL_TARGETS = [
     *(["results/tables/table2.csv", "results/plots/table2_errors.png"] if PRIOR_SETTINGS else []),
     *(["results/tables/noise_monte_carlo.csv"] if MONTE_CARLO_SETS else []),
     *(["results/tables/geometry_sensitivity.csv"] if SENSITIVITY_SETS else []),
+    *(["results/tables/model_mismatch.csv"] if MODEL_SETS else []),
 ]
 
 

@@ -12,6 +12,7 @@ sys.path.insert(0, str(REPO / "workflow"))
 
 from asteroid_photometry.config import SCHEMA_PATH, ConfigError, load_schema, validate_config  # noqa: E402
 
+LAWS = ["lambert", "lommel_seeliger", "lunar_lambert", "minnaert", "hapke"]
 SHIPPED_CONFIGS = [REPO / "config" / "config.yaml", REPO / "config" / "test.yaml"]
 
 
@@ -46,7 +47,10 @@ def _walk_object_schemas(schema, path="<top level>"):
 def test_schema_forbids_unknown_keys_and_describes_every_key():
     schema = load_schema()
     objects = list(_walk_object_schemas(schema))
-    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "reconstruction", "geometry_sensitivity"]
+    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "reconstruction", "geometry_sensitivity",
+        "model_mismatch", "model_mismatch.parameters", *(f"model_mismatch.parameters.{law}" for law in LAWS),
+        "model_mismatch.fit", *(f"model_mismatch.fit.{law}" for law in LAWS),
+    ]
     for path, object_schema in objects:
         assert object_schema.get("additionalProperties") is False, path
         for key, subschema in object_schema["properties"].items():

@@ -33,7 +33,8 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["render"] == 32
     assert jobs["add_noise"] == 48
     assert jobs["fit"] == (16 + 16 + 48) * 3
-    assert jobs["observation_geometry"] == 2
+    # Table 1's two light angles, and the six more of the phase sweep.
+    assert jobs["observation_geometry"] == 2 + 6
     assert jobs["reconstruct"] == 16 * 2  # with and without priors
     assert jobs["refine_cloud"] == 16 * 2
     assert jobs["fit_cloud"] == 16 * 2 * 3
@@ -41,6 +42,9 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["geometry_sensitivity"] == 16
     # The shape model ships with the workflow: a clone needs no network.
     assert "fetch_shape_model" not in jobs and jobs["prepare_shape"] == 1
+    # The model family: five laws at Table 1's two light angles, Hapke at six more phase angles.
+    assert jobs["render_model_set"] == 5 * 2 + 6
+    assert jobs["fit_model_set"] == 5 * 2 and jobs["phase_sweep_set"] == 8 and jobs["tabulate_model_mismatch"] == 1
 
 
 def test_dry_run_plans_the_download_when_asked(tmp_path):
@@ -63,11 +67,12 @@ def test_dry_run_with_the_optional_parts_off_plans_table1_only(tmp_path):
         "-n", "--cores", "1", "-d", str(tmp_path), "--configfile", str(REPO / "config" / "config.yaml"),
         # The README's Table-1-only command.
         "--config", "noise_levels=[]", "surface_maps=[]", "reconstruction={enabled: false}",
+        "model_mismatch={enabled: false}",
     )
     assert run.returncode == 0, run.stdout + run.stderr
     jobs = _job_counts(run.stdout)
     assert jobs["render"] == 16 and jobs["fit"] == 16 * 3 and jobs["tabulate_table1"] == 1
-    for absent in ("add_noise", "plot_noise", "tabulate_sweep", "noise_monte_carlo", "reconstruct", "refine_cloud", "tabulate_table2", "plot_table2", "plot_error_map", "geometry_sensitivity"):
+    for absent in ("add_noise", "plot_noise", "tabulate_sweep", "noise_monte_carlo", "reconstruct", "refine_cloud", "tabulate_table2", "plot_table2", "plot_error_map", "geometry_sensitivity", "render_model_set", "tabulate_model_mismatch"):
         assert absent not in jobs, absent
 
 
@@ -96,7 +101,10 @@ def test_small_run_writes_every_output(small_run):
     assert frames["light_dir_cam"][0] > 0
     assert all((small_run / "results/render/light10_albedo0.6_k0.8" / image["file"]).exists() for image in frames["images"])
     runtime = pd.read_csv(small_run / "results/tables/runtime.csv")
-    assert set(runtime.stage) == {"render", "add_noise", "observation_geometry", "observe", "fit", "reconstruct", "register_cloud", "refine_cloud", "fit_cloud", "noise_monte_carlo", "geometry_sensitivity"}
+    assert set(runtime.stage) == {
+        "render", "add_noise", "observation_geometry", "observe", "fit", "reconstruct", "register_cloud", "refine_cloud", "fit_cloud",
+        "noise_monte_carlo", "geometry_sensitivity", "render_model_set", "fit_model_set", "phase_sweep_set",
+    }
     for sweep in ("noise", "surface_maps"):
         assert (small_run / f"results/tables/{sweep}.md").stat().st_size > 0
 
@@ -222,6 +230,37 @@ def test_small_run_geometry_sensitivity(small_run):
     assert (bilinear.k_rmse > 0.02).all() and (pure.k_rmse < 0.05 * bilinear.k_rmse).all()
     assert (pure.light_dir_err_deg < bilinear.light_dir_err_deg).all() and (pure.light_dir_err_deg < 0.2).all()
     assert (pure.k_err.abs() < 0.001).all() and (pure.n_points > 100).all()
+
+
+def test_small_run_model_mismatch(small_run):
+    table = pd.read_csv(small_run / "results/tables/model_mismatch.csv")
+    for name in ("results/tables/model_mismatch.md", "results/plots/model_mismatch_phase.png", "results/plots/model_mismatch_residuals.png"):
+        assert (small_run / name).stat().st_size > 0, name
+    # Identity fits on Table 1's geometry: each law rendered and fitted back.
+    identity = table[table.experiment == "identity"].set_index(["render_model", "light_angle_deg"])
+    assert len(identity) == 2 * 2
+    assert (identity.loc["minnaert"].light_err_deg < 0.003).all() and (identity.loc["minnaert"].max_param_err < 0.001).all()
+    # Hapke: at 10 deg within the bounds; at phase 0 its roughness is flat in the cost (full run: 0.0015 deg off).
+    hapke = identity.loc["hapke"]
+    assert hapke.loc[10.0].light_err_deg < 0.003 and hapke.loc[10.0].max_param_err < 0.001
+    assert hapke.loc[0.0].light_err_deg < 0.003 and hapke.loc[0.0].max_param_err < 0.01
+    # The cross-fit matrix: every law on every rendering, noiseless and noisy; BIC picks the rendering law.
+    cross = table[table.experiment == "cross_fit"]
+    assert len(cross) == 2 * 2 * 2 * 2
+    noisy = cross[cross.noise == "amica12"]
+    for (law, angle), cells in noisy.groupby(["render_model", "light_angle_deg"]):
+        assert cells.set_index("fit_model").bic.idxmin() == law, (law, angle)
+    clean = cross[cross.noise == "none"].set_index(["render_model", "light_angle_deg", "fit_model"])
+    assert clean.loc[("hapke", 0.0, "minnaert")].residual_rms > 0.005 > clean.loc[("hapke", 0.0, "hapke")].residual_rms
+    # Minnaert k of a Hapke surface: from the images and from the law directly, the same.
+    sweep = table[table.experiment == "phase_sweep"]
+    assert list(sweep.light_angle_deg) == [10.0]
+    assert (sweep.k_images_minus_law.abs() < 0.01).all()
+    assert (sweep.light_err_deg > 0.5).all()  # the Minnaert fit's light is off on a Hapke surface
+    # The Fisher rows: Hapke's roughness per point is far less certain than one for the body.
+    fisher = table[table.experiment == "fisher"]
+    rough = fisher[(fisher.render_model == "hapke") & (fisher.parameter == "roughness_deg")]
+    assert rough[rough.per_point == True].crb_std.min() > 5 * rough[rough.placement == "configured"].crb_std.max()  # noqa: E712
 
 
 def test_rerun_has_nothing_to_do(small_run):

@@ -13,6 +13,10 @@ The library behind the Snakemake workflow. Each module is one stage:
 - ``reconstruct`` / ``cloud`` / ``register`` / ``quality`` / ``refine`` /
   ``table2``: Table 2 from images alone, scored against the truth.
 - ``sensitivity``: what the estimator needs from the geometry.
+- ``photometry`` / ``render_models`` / ``model_fit`` / ``mismatch``: the
+  photometric model family (Lambert, Lommel-Seeliger, Lunar-Lambert,
+  Minnaert, Hapke), its Mitsuba plugin, its fits and the model-mismatch
+  experiment.
 - ``stages``: the file-level stages the rule scripts call.
 - ``metrics`` / ``plots``: comparison with the truth and with the paper.
 

@@ -176,6 +176,24 @@ def validate_config(config):
 
 def _check_cross_references(config):
     """What a JSON Schema cannot say: a key that names an entry of another key."""
+    models = config.get("model_mismatch", {})
+    level_names = [level.get("name") for level in config.get("noise_levels", [])]
+    # As for the Monte Carlo: an empty noise_levels turns the noisy cross-fits off, a name that is not there is a mistake.
+    if models.get("enabled") and models.get("noise_level") is not None and level_names and models["noise_level"] not in level_names:
+        raise ConfigError(
+            f"config key 'model_mismatch.noise_level': {models['noise_level']!r} is not the name of a 'noise_levels' entry "
+            f"(names: {level_names}); name one, or null for noiseless cross-fits only"
+        )
+    for key, what in (("parameters", "its parameters"), ("fit", "its per_point / global lists")):
+        lacking = [law for law in models.get("models", []) if law not in models.get(key, {})] if models.get("enabled") else []
+        if lacking:
+            raise ConfigError(f"config key 'model_mismatch.{key}': no entry for {lacking} (each law in model_mismatch.models needs {what})")
+    for law, placement in models.get("fit", {}).items() if models.get("enabled") else ():
+        from .photometry import get_model
+
+        unknown = [name for name in placement.get("per_point", []) + placement.get("global", []) if name not in get_model(law).parameters]
+        if unknown:
+            raise ConfigError(f"config key 'model_mismatch.fit.{law}': {unknown} are not parameters of {law} ({', '.join(get_model(law).parameters)})")
     study = config.get("noise_monte_carlo", {})
     names = [level.get("name") for level in config.get("noise_levels", [])]
     # An empty noise_levels turns the noise off, the Monte Carlo with it; a name that is not there is a mistake.

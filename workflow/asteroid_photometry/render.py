@@ -177,6 +177,9 @@ def setup_mitsuba(requested_variant: str = "auto") -> str:
     variant = choose_variant(requested_variant)
     mi.set_variant(variant)
     register_minnaert_plugin()
+    from .render_models import register_photometric_plugin
+
+    register_photometric_plugin()
     log.info("Mitsuba %s, variant %s", mi.__version__, variant)
     return variant
 
@@ -294,6 +297,7 @@ def render_image_set(
     seed: int = 0,
     variant: str = "auto",
     facet_maps_path: Path | None = None,
+    bsdf: dict | None = None,
 ) -> dict:
     """Render every image of one set as a linear float EXR into ``out_dir``; write ``frames.json``.
 
@@ -306,14 +310,27 @@ def render_image_set(
     repeated) is also written there as an .npz (``surface_maps.save_facet_maps``)
     and ``frames.json`` names it under ``facet_maps`` (relative to ``out_dir``
     when inside it).
+
+    ``bsdf`` (a ``render_models.bsdf_dict``) renders a uniform surface of
+    another photometric law instead; ``albedo`` and ``minnaert_k`` are then
+    ignored and ``frames.json`` records the BSDF under ``bsdf``.
     """
     import mitsuba as mi
 
-    per_facet = per_facet_parameters(albedo, minnaert_k, len(faces))  # validate before the slow set-up
+    if bsdf is not None:
+        albedo = minnaert_k = float("nan")
+        per_facet = None
+    else:
+        per_facet = per_facet_parameters(albedo, minnaert_k, len(faces))  # validate before the slow set-up
     variant = setup_mitsuba(variant)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    mesh = minnaert_mesh(len(vertices_m), len(faces), albedo, minnaert_k)
+    if bsdf is not None:
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict(bsdf)
+        mesh = mi.Mesh("body", len(vertices_m), len(faces), props=props, has_vertex_normals=False)
+    else:
+        mesh = minnaert_mesh(len(vertices_m), len(faces), albedo, minnaert_k)
     mesh_params = mi.traverse(mesh)
     mesh_params["faces"] = mi.UInt32(np.ascontiguousarray(faces, dtype=np.uint32).ravel())
     mesh_params["vertex_positions"] = mi.Float(np.zeros(3 * len(vertices_m), dtype=np.float32))
@@ -334,12 +351,11 @@ def render_image_set(
     seconds = time.perf_counter() - started
     log.info(
         "rendered %d images of %dx%d at %d spp in %.1f s (%s, %s albedo and k)", len(images), geometry.intrinsics.width,
-        geometry.intrinsics.height, spp, seconds, variant, "uniform" if per_facet is None else "per-facet",
+        geometry.intrinsics.height, spp, seconds, variant, bsdf["model"] if bsdf else ("uniform" if per_facet is None else "per-facet"),
     )
 
     metadata = {
-        **_parameter_metadata("albedo", albedo),
-        **_parameter_metadata("minnaert_k", minnaert_k),
+        **({"bsdf": bsdf} if bsdf is not None else {**_parameter_metadata("albedo", albedo), **_parameter_metadata("minnaert_k", minnaert_k)}),
         "light_dir_cam": np.asarray(light_dir_cam, float).tolist(),
         "intrinsics": geometry.intrinsics.to_dict(),
         "samples_per_pixel": int(spp),
@@ -347,7 +363,7 @@ def render_image_set(
         "render_seconds": seconds,
         "images": images,
     }
-    if facet_maps_path is not None:
+    if facet_maps_path is not None and bsdf is None:
         from . import surface_maps
 
         facet_maps_path = Path(facet_maps_path)

@@ -20,6 +20,7 @@ if str(WORKFLOW_DIR) not in sys.path:
 from asteroid_photometry.config import validate_config, ConfigError
 from asteroid_photometry.experiment import image_sets, named_entry
 from asteroid_photometry.shape import get_shape_model_spec
+from asteroid_photometry.mismatch import model_sets
 
 try:
     config.update(validate_config(config))
@@ -57,6 +58,10 @@ def reconstruction_settings(stage):
 
 
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
+# The model-mismatch experiment's sets ({name: (law, light angle)}), and the light angle of every light tag.
+MODEL_SETS = model_sets(config["model_mismatch"], config["light_angles_deg"]) if config["model_mismatch"]["enabled"] else {}
+LIGHT_ANGLE_OF_TAG = {s.light_tag: s.light_angle_deg for s in SETS.values()}
+LIGHT_ANGLE_OF_TAG.update({f"light{angle:g}": angle for _, angle in MODEL_SETS.values()})
 ESTIMATORS = config["estimators"]
 # Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.
 TABLE2_PLOT_METHOD = "koizumi_lm" if "koizumi_lm" in ESTIMATORS else ESTIMATORS[0]
@@ -113,3 +118,42 @@ def shape_model_file(wildcards):
 def error_map_set(wildcards):
     """The set whose per-point errors are drawn for a surface map: the last base set's variant."""
     return next(i for i, s in reversed(list(SETS.items())) if s.surface_map == wildcards.map_name and not s.noise_level)
+
+
+# The model-mismatch experiment (rules/models.smk).
+MODEL_SETTINGS = config["model_mismatch"]
+# Table 1's light angles carry the cross-fits; the Hapke sets carry the phase sweep.
+CROSS_FIT_SETS = [name for name, (law, angle) in MODEL_SETS.items() if angle in [float(a) for a in config["light_angles_deg"]]]
+SWEEP_SETS = [name for name, (law, angle) in MODEL_SETS.items() if law == "hapke" and angle in [float(a) for a in MODEL_SETTINGS["phase_angles_deg"]]]
+# The sensor of the noisy cross-fits; none when noise_level is null or noise_levels empty.
+MODEL_SENSOR = (
+    named_entry(config, "noise_levels", MODEL_SETTINGS["noise_level"])
+    if MODEL_SETS and MODEL_SETTINGS["noise_level"] and config["noise_levels"]
+    else None
+)
+MODEL_BENCHMARKS = [
+    *expand("benchmarks/render_model_set/{model_set}.tsv", model_set=MODEL_SETS),
+    *expand("benchmarks/fit_model_set/{model_set}.tsv", model_set=CROSS_FIT_SETS),
+    *expand("benchmarks/phase_sweep_set/{model_set}.tsv", model_set=SWEEP_SETS),
+]
+
+
+def model_set_law(wildcards):
+    return MODEL_SETS[wildcards.model_set][0]
+
+
+def model_set_angle(wildcards):
+    return MODEL_SETS[wildcards.model_set][1]
+
+
+def model_set_geometry(wildcards):
+    return f"results/observations/geometry_light{MODEL_SETS[wildcards.model_set][1]:g}.npz"
+
+
+def model_set_seed(wildcards):
+    """Each set's own seed, from the experiment's seed and the set's name."""
+    return (MODEL_SETTINGS["seed"] * 1_000_003 + sorted(MODEL_SETS).index(wildcards.model_set)) % 2**32
+
+
+wildcard_constraints:
+    model_set="(" + "|".join(MODEL_SETTINGS["models"]) + ")_light[^/_]+",

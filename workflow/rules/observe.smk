@@ -8,9 +8,7 @@ rule observation_geometry:
     output:
         npz="results/observations/geometry_{light_tag}.npz",
     params:
-        light_angle_deg=lambda wildcards: next(
-            s.light_angle_deg for s in SETS.values() if s.light_tag == wildcards.light_tag
-        ),
+        light_angle_deg=lambda wildcards: LIGHT_ANGLE_OF_TAG[wildcards.light_tag],
         observations=config["observations"],
     threads: 2
     log:

@@ -37,7 +37,7 @@ rule tabulate_runtime:
     input:
         benchmarks=lambda wildcards: [
             *expand("benchmarks/render/{set_id}.tsv", set_id=[i for i, s in SETS.items() if not s.noise_level]),
-            *expand("benchmarks/observation_geometry/{light_tag}.tsv", light_tag=LIGHT_TAGS),
+            *expand("benchmarks/observation_geometry/{light_tag}.tsv", light_tag=LIGHT_ANGLE_OF_TAG),
             *expand("benchmarks/add_noise/{set_id}.tsv", set_id=SWEEPS.get("noise", [])),
             *expand("benchmarks/observe/{set_id}.tsv", set_id=SETS),
             *expand("benchmarks/fit/{set_id}/{method}.tsv", set_id=SETS, method=ESTIMATORS),
@@ -52,6 +52,7 @@ rule tabulate_runtime:
                 priors=PRIOR_SETTINGS,
                 method=ESTIMATORS,
             ),
+            *MODEL_BENCHMARKS,
         ],
         # The fits' own wall-clock seconds, kept out of the science tables.
         summaries=[
