@@ -16,6 +16,25 @@ include: "workflow/rules/tabulate.smk"
 include: "workflow/rules/reconstruct.smk"
 
 
+# Rules that only gather results into tables and plots (seconds each), and the
+# download (compute nodes often have no network): they run in Snakemake's own
+# process under any executor, never as cluster jobs. A new tabulate or plot
+# rule belongs here too.
+localrules:
+    all,
+    fetch_shape_model,
+    tabulate_table1,
+    plot_table1,
+    tabulate_runtime,
+    tabulate_sweep,
+    plot_error_map,
+    plot_noise,
+    tabulate_noise_monte_carlo,
+    tabulate_geometry_sensitivity,
+    tabulate_table2,
+    plot_table2,
+
+
 # The optional outputs, each only when its part of the experiment is configured.
 OPTIONAL_TARGETS = [
     *(["results/plots/noise_against_bound.png"] if "noise" in SWEEPS else []),
