@@ -16,13 +16,15 @@ include: "workflow/rules/tabulate.smk"
 include: "workflow/rules/reconstruct.smk"
 
 
-# Rules that only gather results into tables and plots (seconds each), and the
-# download (compute nodes often have no network): they run in Snakemake's own
-# process under any executor, never as cluster jobs. A new tabulate or plot
-# rule belongs here too.
+# Rules of a few seconds that only prepare the inputs (the shape model, its
+# download: compute nodes often have no network; the cameras) or gather results
+# into tables and plots: they run in Snakemake's own process under any
+# executor, never as cluster jobs. A new tabulate or plot rule belongs here.
 localrules:
     all,
     fetch_shape_model,
+    prepare_shape,
+    imaging_geometry,
     tabulate_table1,
     plot_table1,
     tabulate_runtime,
