@@ -2,6 +2,8 @@
 #
 #   make               same as `make reproduce`: the full workflow, then results/report.zip
 #   make test          pytest on tests/ (unit, schema and the small end-to-end run)
+#   make test-cluster  the small config on a one-node SLURM brought up on this machine
+#                      (root; see tests/cluster/run_cluster_test.sh)
 #   make venv          the virtual environment $(VENV) from requirements.txt
 #   make sysdeps       the Debian packages Mitsuba's LLVM backend and open3d need
 #   make report        results/report.zip from an existing run
@@ -48,7 +50,7 @@ RUN_ENV := export PATH="$(abspath $(VENV))/bin:$$PATH"; \
 SNAKEMAKE := $(VENV)/bin/snakemake --cores $(CORES)
 VENV_STAMP := $(VENV)/.requirements.stamp
 
-.PHONY: reproduce test venv sysdeps report clean lint help
+.PHONY: reproduce test test-cluster venv sysdeps report clean lint help
 
 reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) --rerun-incomplete $(SNAKEMAKE_ARGS)
@@ -59,6 +61,12 @@ report: venv
 
 test: sysdeps venv
 	$(RUN_ENV) $(VENV)/bin/python -m pytest tests -v --durations=10 $(PYTEST_ARGS)
+
+# Installs and starts munge, slurmctld and slurmd (as root), runs a trimmed
+# config/test.yaml locally and through profiles/slurm, compares.
+test-cluster: sysdeps venv
+	$(RUN_ENV) SNAKEMAKE=$(abspath $(VENV))/bin/snakemake SHAPE_MODEL_FILE=$(SHAPE_MODEL_FILE) \
+		tests/cluster/run_cluster_test.sh
 
 lint: venv
 	$(RUN_ENV) $(VENV)/bin/snakemake --lint $(CONFIG_ARGS) $(SNAKEMAKE_ARGS)
@@ -114,4 +122,4 @@ clean:
 	rm -rf results/
 
 help:
-	@sed -n '2,13s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+	@sed -n '2,15s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
