@@ -8,9 +8,11 @@ each names the job's rule and wildcards; per rule, as many SLURM jobs as the
 dry run planned. The rules the profile sizes ran on the cluster; the others,
 the tables and plots among them, did not reach SLURM.
 (b) Every table of the cluster run equals the local run's, cell for cell,
-timing columns aside.
+timing columns aside: digit for digit, or to RTOL where the workflow is not
+bit-reproducible (see RTOL).
 """
 import argparse
+import math
 import re
 import sys
 from collections import Counter
@@ -22,6 +24,12 @@ import yaml
 # Wall-clock measurements, which differ between any two runs.
 TIMING_TABLES = {"runtime.csv"}
 TIMING_COLUMN = re.compile(r"(_seconds|_s|_time)$|^(seconds|s|time)$")
+# Numbers equal to this relative difference count as equal. The cloud's
+# registration to the shape model (open3d) is not bit-reproducible: its
+# transform differed by 8e-15 between a local and a cluster run, and Table 2's
+# columns computed through it (accuracy, normal errors, the fits on true
+# normals and surface) by up to 2e-11; everything else was bit-identical.
+RTOL = 1e-9
 
 
 def parse_jobs(log):
@@ -161,7 +169,8 @@ def check_tables(args, errors):
     for name in sorted(set(local_tables) & set(cluster_tables)):
         if name in TIMING_TABLES:
             continue
-        # As text: equal means the same digits, not merely close numbers.
+        # As text: equal means the same digits; numbers that differ in the
+        # last digits only (RTOL) are counted and reported.
         local = pd.read_csv(args.local / "results" / "tables" / name, dtype=str, keep_default_na=False)
         cluster = pd.read_csv(args.cluster / "results" / "tables" / name, dtype=str, keep_default_na=False)
         timing = [column for column in local.columns if TIMING_COLUMN.search(column)]
@@ -169,14 +178,28 @@ def check_tables(args, errors):
         if list(local.columns) != list(cluster.columns) or local.shape != cluster.shape:
             errors.append(f"{name}: columns or shape differ ({local.shape} vs {cluster.shape})")
             continue
-        differ = local != cluster
-        if differ.any().any():
-            for row, column in zip(*differ.to_numpy().nonzero()):
-                errors.append(
-                    f"{name} row {row} {local.columns[column]}: local {local.iat[row, column]}, cluster {cluster.iat[row, column]}"
-                )
-        else:
-            print(f"{name}: {local.shape[0]} rows x {local.shape[1]} columns equal" + (f" (timing columns {timing} left out)" if timing else ""))
+        close, largest = 0, 0.0
+        for row, column in zip(*(local != cluster).to_numpy().nonzero()):
+            a, b = local.iat[row, column], cluster.iat[row, column]
+            relative = relative_difference(a, b)
+            if relative <= RTOL:
+                close, largest = close + 1, max(largest, relative)
+            else:
+                errors.append(f"{name} row {row} {local.columns[column]}: local {a}, cluster {b}")
+        print(
+            f"{name}: {local.shape[0]} rows x {local.shape[1]} columns equal"
+            + (f", {close} cells within {RTOL:g} (largest relative difference {largest:.1e}), the rest digit for digit" if close else " digit for digit")
+            + (f" (timing columns {timing} left out)" if timing else "")
+        )
+
+
+def relative_difference(a, b):
+    """|a - b| / |a| for two numbers; infinite when either is not a number."""
+    try:
+        x, y = float(a), float(b)
+    except ValueError:
+        return math.inf
+    return abs(x - y) / abs(x) if x else (0.0 if y == 0 else math.inf)
 
 
 def main():

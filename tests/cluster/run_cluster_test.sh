@@ -178,4 +178,4 @@ squeue --states=all --noheader --partition="$PARTITION" --format='%i|%j|%T|%k' >
     --profile "$REPO/profiles/slurm/config.v8+.yaml" \
     --local "$WORK/local" --cluster "$WORK/cluster"
 passed=true
-say "test-cluster passed"
+say "test-cluster passed in $SECONDS s"
