@@ -32,12 +32,14 @@ PACKAGES=(munge slurmctld slurmd slurm-client slurm-wlm-basic-plugins)
 
 say() { printf '\n==> %s\n' "$*"; }
 fail() { echo "test-cluster: error: $*" >&2; exit 1; }
+# Whether a process of that name runs (no pgrep: procps is not in a minimal Debian).
+running() { grep -sqx "$1" /proc/[0-9]*/comm; }
 
 if [[ $(id -u) != 0 ]]; then
     fail "needs root (installs ${PACKAGES[*]}, writes $SLURM_CONF, starts the SLURM daemons)"
 fi
 for daemon in slurmctld slurmd; do
-    if pgrep -x "$daemon" >/dev/null; then
+    if running "$daemon"; then
         fail "$daemon is already running on this machine; this test brings up its own one-node SLURM"
     fi
 done
@@ -122,7 +124,7 @@ sed -e "s|@STATE_DIR@|$STATE|g" -e "s|@CPUS@|$cpus|g" -e "s|@MEMORY_MB@|$memory|
     -e "s|@PARTITION@|$PARTITION|g" "$HERE/slurm.conf.in" >"$SLURM_CONF"
 echo "node: $cpus CPUs, $memory MB; partition $PARTITION"
 
-if ! pgrep -x munged >/dev/null; then
+if ! running munged; then
     # munged refuses a key directory or key that others can read.
     [[ -s /etc/munge/munge.key ]] || mungekey --create --keyfile /etc/munge/munge.key
     chown -R munge:munge /etc/munge
