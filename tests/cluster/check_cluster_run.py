@@ -28,8 +28,9 @@ TIMING_COLUMN = re.compile(r"(_seconds|_s|_time)$|^(seconds|s|time)$")
 # registration to the shape model (open3d) is not bit-reproducible: its
 # transform differed by 8e-15 between a local and a cluster run, and Table 2's
 # columns computed through it (accuracy, normal errors, the fits on true
-# normals and surface) by up to 2e-11; everything else was bit-identical.
-RTOL = 1e-9
+# normals and surface) by up to 2e-11 and 1.3e-10 in two trials; everything
+# else was bit-identical. Table 2 states no number to more than 1e-4.
+RTOL = 1e-7
 
 
 def parse_jobs(log):
