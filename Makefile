@@ -2,6 +2,8 @@
 #
 #   make               same as `make reproduce`: the full workflow, then results/report.zip
 #   make test          pytest on tests/ (unit, schema and the small end-to-end run)
+#   make test-cluster  the small config on a one-node SLURM brought up on this machine
+#                      (root; see tests/cluster/run_cluster_test.sh)
 #   make venv          the virtual environment $(VENV) from requirements.txt
 #   make sysdeps       the Debian packages Mitsuba's LLVM backend and open3d need
 #   make report        results/report.zip from an existing run
@@ -47,7 +49,7 @@ RUN_ENV := export PATH="$(abspath $(VENV))/bin:$$PATH"; \
 SNAKEMAKE := $(VENV)/bin/snakemake --cores $(CORES)
 VENV_STAMP := $(VENV)/.requirements.stamp
 
-.PHONY: reproduce test venv sysdeps report unlock clean lint help
+.PHONY: reproduce test test-cluster venv sysdeps report unlock clean lint help
 
 reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) --rerun-incomplete $(SNAKEMAKE_ARGS)
@@ -58,10 +60,15 @@ report: venv
 
 # A run killed hard (SIGKILL, a lost node, a power cut) leaves Snakemake's lock behind.
 unlock: venv
-	$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) --unlock $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(SNAKEMAKE) --unlock $(SNAKEMAKE_ARGS)
 
 test: sysdeps venv
 	$(RUN_ENV) $(VENV)/bin/python -m pytest tests -v --durations=10 $(PYTEST_ARGS)
+
+# Installs and starts munge, slurmctld and slurmd (as root), runs a trimmed
+# config/test.yaml locally and through profiles/slurm, compares.
+test-cluster: sysdeps venv
+	$(RUN_ENV) SNAKEMAKE=$(abspath $(VENV))/bin/snakemake tests/cluster/run_cluster_test.sh
 
 lint: venv
 	$(RUN_ENV) $(VENV)/bin/snakemake --lint $(SNAKEMAKE_ARGS)
@@ -117,4 +124,4 @@ clean:
 	rm -rf results/
 
 help:
-	@sed -n '2,14s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+	@sed -n '2,15s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))

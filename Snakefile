@@ -17,6 +17,28 @@ include: "workflow/rules/reconstruct.smk"
 include: "workflow/rules/models.smk"
 
 
+# Rules of a few seconds that only prepare the inputs (the shape model, its
+# download: compute nodes often have no network; the cameras) or gather results
+# into tables and plots: they run in Snakemake's own process under any
+# executor, never as cluster jobs. A new tabulate or plot rule belongs here.
+localrules:
+    all,
+    fetch_shape_model,
+    prepare_shape,
+    imaging_geometry,
+    tabulate_table1,
+    plot_table1,
+    tabulate_runtime,
+    tabulate_sweep,
+    plot_error_map,
+    plot_noise,
+    tabulate_noise_monte_carlo,
+    tabulate_geometry_sensitivity,
+    tabulate_model_mismatch,
+    tabulate_table2,
+    plot_table2,
+
+
 # The optional outputs, each only when its part of the experiment is configured.
 OPTIONAL_TARGETS = [
     *(["results/plots/noise_against_bound.png"] if "noise" in SWEEPS else []),
