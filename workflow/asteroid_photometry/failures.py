@@ -88,8 +88,11 @@ def check_status(content: dict, path) -> None:
         raise passed_on(content.get("reason", f"{path} is marked failed"))
 
 
-def status_counts_line(table, what: str = "sets") -> str:
-    """E.g. ``14 of 16 sets ok; 2 failed: light0_albedo0.5_k0.7 (reconstruct: ...), ...`` (one line of Markdown)."""
+def status_counts_line(table, what: str = "sets", keys=("set_id", "priors", "method")) -> str:
+    """E.g. ``14 of 16 sets ok; 2 failed: light0_albedo0.5_k0.7 (reconstruct: ...); ...`` (one line of Markdown).
+
+    A failed row is named by its ``keys`` columns (those it has).
+    """
     if "status" not in table or not len(table):
         return f"{len(table)} {what}."
     ok = table["status"].fillna(OK).astype(str) == OK
@@ -97,5 +100,5 @@ def status_counts_line(table, what: str = "sets") -> str:
     failed = table[~ok]
     if failed.empty:
         return line + "."
-    labels = failed.apply(lambda row: " ".join(str(row[key]) for key in ("set_id", "priors", "method") if key in row and row[key] == row[key]), axis=1)
+    labels = failed.apply(lambda row: " ".join(str(row[key]) for key in keys if key in row and row[key] == row[key]), axis=1)
     return line + f"; {len(failed)} failed: " + "; ".join(f"{label} ({status.removeprefix(FAILED + ': ')})" for label, status in zip(labels, failed["status"])) + "."

@@ -114,7 +114,7 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
         "",
     ]
     for method, group in merged.groupby("method", sort=False):
-        lines += [f"## {method}", "", status_counts_line(group), ""]
+        lines += [f"## {method}", "", status_counts_line(group, keys=("set_id",)), ""]
         lines += [
             "| light | albedo | k | light est (paper) | light est (ours) | dir err (ours) | albedo est (paper) | albedo est (ours) "
             "| albedo RMSE | k est (paper) | k est (ours) | k RMSE | points | obs | fit s |",
@@ -160,7 +160,7 @@ def sweep_markdown(table: pd.DataFrame, sweep: str) -> str:
     lines = [f"# {titles.get(sweep, sweep)}", ""]
     columns = [c for c in SWEEP_MARKDOWN_COLUMNS if c in table]
     for method, group in table.groupby("method", sort=False):
-        lines += [f"## {method}", "", status_counts_line(group), ""]
+        lines += [f"## {method}", "", status_counts_line(group, keys=("set_id",)), ""]
         lines += ["| " + " | ".join(SWEEP_MARKDOWN_COLUMNS[c][0] for c in columns) + " |", "|" + "---|" * len(columns)]
         for _, row in group.iterrows():
             cells = [text_cell(row[c]) if SWEEP_MARKDOWN_COLUMNS[c][1] is None else _fmt(row[c], SWEEP_MARKDOWN_COLUMNS[c][1]) for c in columns]

@@ -96,10 +96,12 @@ def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, thr
 
 
 def _reconstruct(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
+    frames, images = read_rendered_images(render_dir)  # checked before any work
+    poses = np.array([image["body_to_camera"] for image in frames["images"]], dtype=float)
     attempts = []
     for seed in range(MAX_MAPPER_SEEDS):
-        result = reconstruct.reconstruct_set(
-            render_dir, Path(out_dir) / "work",
+        result = reconstruct.reconstruct_images(
+            images, Intrinsics(**frames["intrinsics"]), Path(out_dir) / "work", true_body_to_camera=poses,
             intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
             camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
             prior_seed=settings["prior_seed"], num_threads=threads, seed=seed,
@@ -474,7 +476,7 @@ def table2_markdown(table: pd.DataFrame) -> str:
         ("k_err_refined", "k err ref.", 4), ("normal_err_deg_median", "normal err", 1), ("normal_err_deg_median_refined", "normal err ref.", 1),
     ]
     for (priors, method), group in table.groupby(["priors", "method"], sort=True):
-        lines += [f"## priors {priors}, {method}", "", status_counts_line(group), ""]
+        lines += [f"## priors {priors}, {method}", "", status_counts_line(group, keys=("set_id",)), ""]
         lines += ["| " + " | ".join(title for _, title, _ in columns) + " |", "|" + "---|" * len(columns)]
         for _, row in group.iterrows():
             cells = []
