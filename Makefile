@@ -6,6 +6,7 @@
 #   make sysdeps       the Debian packages Mitsuba's LLVM backend and open3d need
 #   make report        results/report.zip from an existing run
 #   make lint          snakemake --lint
+#   make footprint     the disk and memory the configured run needs, and what this machine lacks
 #   make clean         remove results/ (Snakemake's .snakemake/ metadata is kept)
 #
 # Variables (make VAR=value): VENV, PYTHON, CORES, SHAPE_MODEL_DIR, PYTEST_ARGS,
@@ -48,7 +49,7 @@ RUN_ENV := export PATH="$(abspath $(VENV))/bin:$$PATH"; \
 SNAKEMAKE := $(VENV)/bin/snakemake --cores $(CORES)
 VENV_STAMP := $(VENV)/.requirements.stamp
 
-.PHONY: reproduce test venv sysdeps report clean lint help
+.PHONY: reproduce test venv sysdeps report clean lint footprint help
 
 reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) --rerun-incomplete $(SNAKEMAKE_ARGS)
@@ -62,6 +63,9 @@ test: sysdeps venv
 
 lint: venv
 	$(RUN_ENV) $(VENV)/bin/snakemake --lint $(CONFIG_ARGS) $(SNAKEMAKE_ARGS)
+
+footprint: venv
+	@$(RUN_ENV) $(SNAKEMAKE) $(CONFIG_ARGS) -n $(SNAKEMAKE_ARGS) 2>&1 | grep -E "^(estimated footprint|warning: )"
 
 venv: $(VENV_STAMP)
 
@@ -114,4 +118,4 @@ clean:
 	rm -rf results/
 
 help:
-	@sed -n '2,13s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+	@sed -n '2,14s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))

@@ -251,3 +251,31 @@ def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_imag
     write_table2([tmp_path / "row.json"], tmp_path / "table2.csv", tmp_path / "table2.md")
     assert pd.read_csv(tmp_path / "table2.csv").status.iloc[0] == row["status"]
     assert "0 of 1 sets ok; 1 failed: light10_albedo0.6_k0.8 (reconstruct: pycolmap registered" in (tmp_path / "table2.md").read_text()
+
+
+# ---------------------------------------------------------------- disk and memory, before the run
+
+
+def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_short(tmp_path):
+    import yaml
+
+    from asteroid_photometry.config import validate_config
+    from asteroid_photometry.experiment import image_sets
+    from asteroid_photometry.footprint import estimate_footprint, footprint_warnings
+
+    config = validate_config(yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text()))
+    sets = image_sets(config)
+    full = estimate_footprint(config, sets, 2, 3)
+    # The default run: 80 sets; 32 clean sets of 7.3 MB and 48 noisy ones of 16.4 MB are 1.0 GB of images alone.
+    assert full.n_sets == 80 and 1.0e9 < full.total_disk_bytes < 2.0e9
+    assert full.largest_job[0] == "refine_cloud" and "estimated footprint of this run: 1.4 GB" in full.summary()
+    large = estimate_footprint(dict(config, image_size=1024), sets, 2, 3)
+    assert large.disk_bytes["rendered images"] == pytest.approx(4 * full.disk_bytes["rendered images"])
+    assert estimate_footprint(config, sets, 0, 3).disk_bytes["reconstructions"] == 0
+    assert footprint_warnings(full, tmp_path, parallel_jobs=2, memory_mb=64_000) == []
+    short = footprint_warnings(full, tmp_path, parallel_jobs=1, memory_mb=500)
+    assert len(short) == 1 and "the largest job (refine_cloud) needs about 786 MB of memory but this machine has 500 MB" in short[0]
+    assert "16 jobs at once may need about 12576 MB" in footprint_warnings(full, tmp_path, parallel_jobs=16, memory_mb=8000)[0]
+    huge = estimate_footprint(dict(config, image_size=8192, n_images=360), sets, 2, 3)
+    disk = footprint_warnings(huge, tmp_path, memory_mb=1e9)
+    assert len(disk) == 1 and f"of disk but {tmp_path} has" in disk[0] and "image_size" in disk[0]

@@ -9,6 +9,7 @@ sys.path.insert(0, str(WORKFLOW_DIR))
 
 from asteroid_photometry.config import validate_config, ConfigError
 from asteroid_photometry.experiment import image_sets, named_entry
+from asteroid_photometry.footprint import estimate_footprint, footprint_warnings
 
 try:
     config.update(validate_config(config))
@@ -47,6 +48,17 @@ def reconstruction_settings(stage):
 
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
 ESTIMATORS = config["estimators"]
+
+# The disk and memory the configured run needs, against what this machine
+# has: in the log of every run, dry runs included (make footprint).
+FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS))
+logger.info(FOOTPRINT.summary())
+try:
+    PARALLEL_JOBS = int(workflow.cores)
+except (WorkflowError, TypeError, ValueError):
+    PARALLEL_JOBS = 1
+for _warning in footprint_warnings(FOOTPRINT, Path.cwd(), PARALLEL_JOBS):
+    logger.warning(f"warning: {_warning}")
 # Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.
 TABLE2_PLOT_METHOD = "koizumi_lm" if "koizumi_lm" in ESTIMATORS else ESTIMATORS[0]
 TABLE2_PLOT_SET = BASE_SETS[-1]
