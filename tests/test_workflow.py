@@ -47,6 +47,8 @@ def test_dry_run_of_the_full_config(shared_dir, tmp_path):
     assert jobs["fit_cloud"] == 16 * 2 * 3
     assert jobs["noise_monte_carlo"] == 16
     assert jobs["geometry_sensitivity"] == 16
+    # The disk and memory it needs, estimated before anything runs.
+    assert "estimated footprint of this run: 1.4 GB on disk for 80 image sets" in run.stdout + run.stderr
 
 
 def test_dry_run_without_local_model_plans_the_download(tmp_path):
