@@ -153,10 +153,11 @@ def test_a_blank_set_is_a_table1_row_with_its_reason(small_set, tmp_path):
     fit_set(synthetic_observations_npz(tmp_path / "obs.npz"), sound_set, "koizumi_lm", tmp_path / "ok.npz", tmp_path / "ok.json", sound_set.set_id)
     write_table1([tmp_path / "ok.json"], PAPER_CSV, tmp_path / "alone.csv", tmp_path / "alone.md")
     write_table1([tmp_path / "ok.json", tmp_path / "blank.json"], PAPER_CSV, tmp_path / "both.csv", tmp_path / "both.md")
-    alone, both = pd.read_csv(tmp_path / "alone.csv"), pd.read_csv(tmp_path / "both.csv")
-    assert list(both.status) == ["ok", row["status"]]
-    pd.testing.assert_series_equal(both.iloc[0].drop("fit_seconds"), alone.iloc[0].drop("fit_seconds"), check_dtype=False)
-    assert both.iloc[1][["light_deg_est", "albedo_err", "k_err", "n_points"]].isna().all()
+    alone, both = (pd.read_csv(tmp_path / name).set_index("set_id") for name in ("alone.csv", "both.csv"))
+    assert list(both.index) == [blank_set.set_id, sound_set.set_id]  # Table 1's order: light, k, albedo
+    assert list(both.status) == [row["status"], "ok"]
+    pd.testing.assert_series_equal(both.loc[sound_set.set_id].drop("fit_seconds"), alone.loc[sound_set.set_id].drop("fit_seconds"), check_dtype=False)
+    assert both.loc[blank_set.set_id, ["light_deg_est", "albedo_err", "k_err", "n_points"]].isna().all()
     markdown = (tmp_path / "both.md").read_text()
     assert "1 of 2 sets ok; 1 failed: light10_albedo0.5_k0.8 (observe: 3 of 3 images are blank" in markdown
 

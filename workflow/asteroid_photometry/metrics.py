@@ -79,7 +79,12 @@ def _rows_with_status(summary_paths) -> pd.DataFrame:
 def collect_table1(summary_paths) -> pd.DataFrame:
     """Table 1: one row per set and estimator; a failed set's row has its ``status`` (the reason) and no numbers."""
     table = _rows_with_status(summary_paths).reindex(columns=TABLE1_COLUMNS)
-    return table.sort_values(["method", "light_deg_true", "k_true", "albedo_true"], kind="stable").reset_index(drop=True)
+    return table.sort_values(["method", "light_deg_true", "k_true", "albedo_true"], kind="stable", key=_rounded).reset_index(drop=True)
+
+
+def _rounded(column: pd.Series) -> pd.Series:
+    """A sort key: the truth rounded (a failed set's row has the config's values, a fitted set's their means over points)."""
+    return column.round(6) if column.dtype.kind == "f" else column
 
 
 def with_paper(table: pd.DataFrame, paper: pd.DataFrame) -> pd.DataFrame:
