@@ -280,3 +280,38 @@ def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_shor
     huge = estimate_footprint(dict(config, image_size=8192, n_images=360), sets, 2, 3)
     disk = footprint_warnings(huge, tmp_path, memory_mb=1e9)
     assert len(disk) == 1 and f"of disk but {tmp_path} has" in disk[0] and "image_size" in disk[0]
+
+
+@pytest.mark.parametrize("fractions, reason", [
+    ([0.1, 0.2, 0.05, 0.3], "reconstruct: the model is depth-reversed (seen from inside) on all 4 mapper seeds: outward fractions 0.10, 0.20, 0.05, 0.30"),
+    ([0.1, 0.9], None),
+])
+def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set, tmp_path, monkeypatch, fractions, reason):
+    """The mapper and the outward test stubbed (a real depth-reversed model takes a full set): the reseeding loop and its record."""
+    pytest.importorskip("pycolmap")
+    from test_reconstruct import synthetic_model, synthetic_scene
+
+    from asteroid_photometry import reconstruct as rc
+    from asteroid_photometry import table2
+
+    poses, intrinsics, points = synthetic_scene()
+    seeds = []
+
+    def mapper(images, intrinsics_, work_dir, **kwargs):
+        seeds.append(kwargs["seed"])
+        model = synthetic_model(poses, intrinsics, points)
+        return rc.SparseReconstruction(model, rc.model_report(model, poses))
+
+    monkeypatch.setattr(table2.reconstruct, "reconstruct_images", mapper)
+    monkeypatch.setattr(table2, "outward_fraction", lambda result, min_track: fractions[len(seeds) - 1])
+    table2.reconstruct_stage(small_set, tmp_path / "model", False, RECONSTRUCTION, 1)
+    status = json.loads((tmp_path / "model" / "status.json").read_text())
+    assert seeds == list(range(len(fractions)))
+    if reason is None:
+        assert status == {"status": "ok"}
+        report = json.loads((tmp_path / "model" / "report.json").read_text())
+        assert [attempt["outward_fraction"] for attempt in report["settings"]["mapper_attempts"]] == fractions
+    else:
+        assert status == {"status": "failed", "reason": reason} and not (tmp_path / "model" / "report.json").exists()
+        with pytest.raises(DataFailure, match="depth-reversed"):
+            table2.read_reconstruction(tmp_path / "model")
