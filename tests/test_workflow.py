@@ -88,7 +88,8 @@ def test_bad_config_is_refused_naming_the_key(tmp_path):
 @pytest.fixture(scope="module")
 def small_run(shared_dir, tmp_path_factory):
     workdir = tmp_path_factory.mktemp("small_run")
-    run = snakemake("--cores", "2", "-d", str(workdir), "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}")
+    # The timeout leaves room for a loaded machine (alone on 2 cores it takes about 5 minutes).
+    run = snakemake("--cores", "2", "-d", str(workdir), "--configfile", str(REPO / "config" / "test.yaml"), "--config", f"shape_model_path={shared_dir / 'itokawa_low.obj'}", timeout=1800)
     assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
     return workdir
 
@@ -296,10 +297,10 @@ def fault_run(shared_dir, tmp_path_factory):
     workdir = tmp_path_factory.mktemp("fault_run")
     config = ["--configfile", str(fault_config(shared_dir, workdir / "faults.yaml"))]
     first = [*(f"results/render/{set_id}" for set_id in (HEALTHY, BLANK, FEW_IMAGES)), f"results/reconstruction/{NO_REGISTRATION}/priors-on"]
-    run = snakemake(*first, "--cores", "2", "-d", str(workdir), *config)
+    run = snakemake(*first, "--cores", "2", "-d", str(workdir), *config, timeout=1800)
     assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
     inject_faults(workdir)
-    run = snakemake("--cores", "2", "-d", str(workdir), *config)
+    run = snakemake("--cores", "2", "-d", str(workdir), *config, timeout=1800)
     assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
     return workdir
 
