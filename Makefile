@@ -9,6 +9,7 @@
 #   make report        results/report.zip from an existing run
 #   make unlock        release the lock a killed run left (then `make` resumes it)
 #   make lint          snakemake --lint
+#   make footprint     the disk and memory the configured run needs, and what this machine lacks
 #   make clean         remove results/ (Snakemake's .snakemake/ metadata is kept)
 #
 # Variables (make VAR=value): VENV, PYTHON, CORES, PYTEST_ARGS,
@@ -49,7 +50,7 @@ RUN_ENV := export PATH="$(abspath $(VENV))/bin:$$PATH"; \
 SNAKEMAKE := $(VENV)/bin/snakemake --cores $(CORES)
 VENV_STAMP := $(VENV)/.requirements.stamp
 
-.PHONY: reproduce test test-cluster venv sysdeps report unlock clean lint help
+.PHONY: reproduce test test-cluster venv sysdeps report unlock clean lint footprint help
 
 reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) --rerun-incomplete $(SNAKEMAKE_ARGS)
@@ -72,6 +73,9 @@ test-cluster: sysdeps venv
 
 lint: venv
 	$(RUN_ENV) $(VENV)/bin/snakemake --lint $(SNAKEMAKE_ARGS)
+
+footprint: venv
+	@$(RUN_ENV) $(SNAKEMAKE) -n $(SNAKEMAKE_ARGS) 2>&1 | grep -E "^(estimated footprint|warning: )"
 
 venv: $(VENV_STAMP)
 
@@ -124,4 +128,4 @@ clean:
 	rm -rf results/
 
 help:
-	@sed -n '2,15s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+	@sed -n '2,16s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))

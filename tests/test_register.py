@@ -11,6 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from asteroid_photometry import register
+from asteroid_photometry.failures import DataFailure
 from asteroid_photometry.quality import completeness, point_scores, reconstruction_quality
 from asteroid_photometry.register import (
     closest_facet,
@@ -209,8 +210,10 @@ def test_a_cloud_that_is_not_the_body_fails(ostro, shape):
         points = rng.normal(size=(2000, 3)) * [3.0, 2.0, 1.0]  # a Gaussian blob, no surface at all
     result = register_to_shape(points, None, *ostro, seed=0)
     assert not result.success
+    assert result.failure_reason.startswith("registration failed: ")
     if shape == "sphere":
         assert result.fitness < 0.9
+        assert "fitness" in result.failure_reason
 
 
 def test_an_ellipsoid_of_the_body_size_fails_as_ambiguous(ostro):
@@ -220,12 +223,13 @@ def test_an_ellipsoid_of_the_body_size_fails_as_ambiguous(ostro):
     result = register_to_shape(points, None, *ostro, seed=0)
     assert not result.success
     assert result.ambiguity > 0.5
+    assert "no unambiguous pose" in result.failure_reason
 
 
 def test_rejects_malformed_input(ostro):
     with pytest.raises(ValueError, match="shape"):
         register_to_shape(np.zeros((10, 2)), None, *ostro)
-    with pytest.raises(ValueError, match="at least 30"):
+    with pytest.raises(DataFailure, match="at least 30"):
         register_to_shape(np.full((100, 3), np.nan), None, *ostro)
     with pytest.raises(ValueError, match="normals"):
         register_to_shape(np.zeros((100, 3)), np.zeros((99, 3)), *ostro)

@@ -45,6 +45,8 @@ def test_dry_run_of_the_full_config(tmp_path):
     # The model family: five laws at Table 1's two light angles, Hapke at six more phase angles.
     assert jobs["render_model_set"] == 5 * 2 + 6
     assert jobs["fit_model_set"] == 5 * 2 and jobs["phase_sweep_set"] == 8 and jobs["tabulate_model_mismatch"] == 1
+    # The disk and memory it needs, estimated before anything runs.
+    assert "estimated footprint of this run: 1.4 GB on disk for 80 image sets" in run.stdout + run.stderr
 
 
 def test_dry_run_plans_the_download_when_asked(tmp_path):
@@ -85,7 +87,8 @@ def test_bad_config_is_refused_naming_the_key(tmp_path):
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("small_run")
-    run = snakemake("--cores", "2", "-d", str(workdir), "--configfile", str(REPO / "config" / "test.yaml"))
+    # The timeout leaves room for a loaded machine (alone on 2 cores it takes about 5 minutes).
+    run = snakemake("--cores", "2", "-d", str(workdir), "--configfile", str(REPO / "config" / "test.yaml"), timeout=1800)
     assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
     return workdir
 
@@ -293,3 +296,114 @@ def test_make_passes_the_users_config_alone():
     assert len(snakemake_lines) == 2  # the run, then the report
     for line in snakemake_lines:
         assert line.count("--config") == 1 and "--configfile" not in line and "shape_model" not in line
+
+
+# ---------------------------------------------------------------- failures are data
+#
+# Four sets of the small config's kind, one healthy and three with a fault
+# injected between the stages (in a temporary working directory): the run
+# completes, each faulty set is a row with its reason, and the healthy set's
+# rows equal those of the small run.
+
+HEALTHY, BLANK, FEW_IMAGES, NO_REGISTRATION = (
+    "light10_albedo0.6_k0.8", "light10_albedo0.5_k0.8", "light10_albedo0.5_k0.9", "light10_albedo0.6_k0.9",
+)
+KEPT_IMAGES = [0, 9, 18, 27]  # every 90 degrees: no two images overlap
+TIMING_COLUMNS = {"fit_seconds", "refit_seconds", "registration_seconds"}
+
+
+def fault_config(path):
+    import yaml
+
+    config = yaml.safe_load((REPO / "config" / "test.yaml").read_text())
+    config.update(
+        light_angles_deg=[10], albedos=[0.5, 0.6], minnaert_k=[0.8, 0.9], estimators=["koizumi_lm"],
+        noise_levels=[], surface_maps=[],
+    )
+    config["reconstruction"]["priors"] = [True]
+    config["geometry_sensitivity"]["enabled"] = False
+    config["model_mismatch"]["enabled"] = False
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def inject_faults(workdir):
+    """Blank images; a set cut to four images; a reconstruction whose points are scattered into a blob."""
+    import pycolmap
+
+    from asteroid_photometry.stages import write_linear_exr
+
+    blank_dir = workdir / "results/render" / BLANK
+    for path in blank_dir.glob("image_*.exr"):
+        write_linear_exr(path, np.zeros((512, 512)))
+    few_dir = workdir / "results/render" / FEW_IMAGES
+    frames = json.loads((few_dir / "frames.json").read_text())
+    for entry in frames["images"]:
+        if entry["index"] not in KEPT_IMAGES:
+            (few_dir / entry["file"]).unlink()
+    frames["images"] = [entry for entry in frames["images"] if entry["index"] in KEPT_IMAGES]
+    (few_dir / "frames.json").write_text(json.dumps(frames))
+    model_dir = workdir / "results/reconstruction" / NO_REGISTRATION / "priors-on" / "model"
+    model = pycolmap.Reconstruction()
+    model.read(model_dir)
+    rng = np.random.default_rng(0)
+    for point_id in model.point3D_ids():
+        model.point3D(point_id).xyz = rng.normal(size=3) * [150.0, 100.0, 80.0]  # no surface at all
+    model.write(model_dir)
+
+
+@pytest.fixture(scope="module")
+def fault_run(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("fault_run")
+    config = ["--configfile", str(fault_config(workdir / "faults.yaml"))]
+    first = [*(f"results/render/{set_id}" for set_id in (HEALTHY, BLANK, FEW_IMAGES)), f"results/reconstruction/{NO_REGISTRATION}/priors-on"]
+    run = snakemake(*first, "--cores", "2", "-d", str(workdir), *config, timeout=1800)
+    assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
+    inject_faults(workdir)
+    run = snakemake("--cores", "2", "-d", str(workdir), *config, timeout=1800)
+    assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
+    return workdir
+
+
+def science_columns(row):
+    return {key: value for key, value in row.items() if key not in TIMING_COLUMNS}
+
+
+def assert_same_rows(ours, reference):
+    for key, value in science_columns(reference).items():
+        if isinstance(value, float):
+            assert np.isclose(ours[key], value, rtol=1e-9, atol=0, equal_nan=True), (key, ours[key], value)
+        else:
+            assert ours[key] == value, (key, ours[key], value)
+
+
+def test_each_faulty_set_is_a_row_with_its_reason(fault_run):
+    table1 = pd.read_csv(fault_run / "results/tables/table1.csv").set_index("set_id")
+    assert set(table1.index) == {HEALTHY, BLANK, FEW_IMAGES, NO_REGISTRATION}
+    assert table1.loc[BLANK, "status"] == "failed: observe: 36 of 36 images are blank (no pixel above 0: image_000.exr, image_001.exr, image_002.exr ...)"
+    assert table1.loc[FEW_IMAGES, "status"].startswith("failed: observe: the set has 4 images but the imaging geometry observes image 35")
+    assert (table1.loc[[BLANK, FEW_IMAGES], ["light_dir_err_deg", "albedo_err", "k_err", "n_points"]].isna()).all().all()
+    assert (table1.loc[[HEALTHY, NO_REGISTRATION], "status"] == "ok").all()
+    table2 = pd.read_csv(fault_run / "results/tables/table2.csv").set_index("set_id")
+    assert table2.loc[BLANK, "status"].startswith("failed: reconstruct: 36 of 36 images are blank")
+    assert table2.loc[FEW_IMAGES, "status"].startswith("failed: reconstruct: pycolmap registered ")
+    assert table2.loc[NO_REGISTRATION, "status"].startswith("failed: register_cloud: registration failed: ")
+    assert table2.loc[HEALTHY, "status"] == "ok"
+    # The failed registration is not scored through its transform: no estimates, no errors.
+    failed = table2.loc[[BLANK, FEW_IMAGES, NO_REGISTRATION]]
+    assert failed[["light_dir_err_deg", "k_err", "k_err_refined", "accuracy_rel_median", "k_err_true_cameras"]].isna().all().all()
+    assert not table2.loc[NO_REGISTRATION, "registration_ok"] and table2.loc[NO_REGISTRATION, "n_images_registered"] == 36
+    # The tables count them.
+    assert "2 of 4 sets ok; 2 failed: " in (fault_run / "results/tables/table1.md").read_text()
+    assert "1 of 4 sets ok; 3 failed: " in (fault_run / "results/tables/table2.md").read_text()
+
+
+def test_the_healthy_set_is_unchanged_by_the_others_failures(fault_run, small_run):
+    keys = ["set_id", "method"]
+    ours, reference = (pd.read_csv(run / "results/tables/table1.csv").set_index(keys).loc[(HEALTHY, "koizumi_lm")] for run in (fault_run, small_run))
+    assert_same_rows(ours.to_dict(), reference.to_dict())
+    # Table 2: the same row, every number there (the reconstruction is deterministic for a given config and seed).
+    keys = ["set_id", "priors", "method"]
+    ours, reference = (pd.read_csv(run / "results/tables/table2.csv").set_index(keys).loc[(HEALTHY, "on", "koizumi_lm")] for run in (fault_run, small_run))
+    assert ours.status == "ok" and ours.n_images_registered == reference.n_images_registered
+    assert_same_rows(ours.to_dict(), reference.to_dict())

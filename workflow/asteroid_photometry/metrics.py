@@ -20,9 +20,10 @@ import numpy as np
 import pandas as pd
 
 from .estimate import FitResult, angle_between_deg, light_angle_deg
+from .failures import OK, DataFailure, status_counts_line
 
 TABLE1_COLUMNS = [
-    "set_id", "method", "light_deg_true", "light_deg_est", "light_deg_err", "light_dir_err_deg",
+    "set_id", "method", "status", "light_deg_true", "light_deg_est", "light_deg_err", "light_dir_err_deg",
     "albedo_true", "albedo_est", "albedo_err", "albedo_rmse", "k_true", "k_est", "k_err", "k_rmse",
     "n_points", "n_obs", "converged",
 ]
@@ -49,7 +50,7 @@ class Truth:
 def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
     fitted = np.isfinite(result.albedo) & np.isfinite(result.minnaert_k)
     if not fitted.any():
-        raise ValueError(f"set {set_id}, {result.method}: no point was fitted (too few observations?)")
+        raise DataFailure(f"{result.method} fitted no point ({result.n_obs} observations)")
     albedo, minnaert_k = result.albedo[fitted], result.minnaert_k[fitted]
     albedo_true = np.broadcast_to(truth.albedo, result.albedo.shape)[fitted]
     k_true = np.broadcast_to(truth.minnaert_k, result.minnaert_k.shape)[fitted]
@@ -78,10 +79,21 @@ def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
     return row
 
 
-def collect_table1(summary_paths) -> pd.DataFrame:
+def _rows_with_status(summary_paths) -> pd.DataFrame:
+    """The summary rows; a row without ``status`` (written before there was one) is ``ok``."""
     rows = [json.loads(Path(path).read_text()) for path in summary_paths]
-    table = pd.DataFrame(rows, columns=TABLE1_COLUMNS)
-    return table.sort_values(["method", "light_deg_true", "k_true", "albedo_true"], kind="stable").reset_index(drop=True)
+    return pd.DataFrame([{"status": OK, **row} for row in rows])
+
+
+def collect_table1(summary_paths) -> pd.DataFrame:
+    """Table 1: one row per set and estimator; a failed set's row has its ``status`` (the reason) and no numbers."""
+    table = _rows_with_status(summary_paths).reindex(columns=TABLE1_COLUMNS)
+    return table.sort_values(["method", "light_deg_true", "k_true", "albedo_true"], kind="stable", key=_rounded).reset_index(drop=True)
+
+
+def _rounded(column: pd.Series) -> pd.Series:
+    """A sort key: the truth rounded (a failed set's row has the config's values, a fitted set's their means over points)."""
+    return column.round(6) if column.dtype.kind == "f" else column
 
 
 def with_paper(table: pd.DataFrame, paper: pd.DataFrame) -> pd.DataFrame:
@@ -99,6 +111,13 @@ def _fmt(value, digits):
     return "" if pd.isna(value) else f"{value:.{digits}f}"
 
 
+def text_cell(value) -> str:
+    """A table cell as text: empty for a missing value, whole numbers without a decimal point."""
+    if pd.isna(value):
+        return ""
+    return f"{value:.0f}" if isinstance(value, float) and value.is_integer() else str(value)
+
+
 def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
     """The readable Table 1: ours beside the paper's, one section per estimator."""
     merged = with_paper(table, paper)
@@ -109,17 +128,20 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
         "",
     ]
     for method, group in merged.groupby("method", sort=False):
-        lines += [f"## {method}", ""]
+        lines += [f"## {method}", "", status_counts_line(group, keys=("set_id",)), ""]
         lines += [
             "| light | albedo | k | light est (paper) | light est (ours) | dir err (ours) | albedo est (paper) | albedo est (ours) "
             "| albedo RMSE | k est (paper) | k est (ours) | k RMSE | points | obs |",
             "|" + "---|" * 14,
         ]
         for _, r in group.iterrows():
+            if r.status != OK:
+                lines.append(f"| {r.light_deg_true:g} | {r.albedo_true:g} | {r.k_true:g} | {_fmt(r.paper_light_deg_est, 4)} | {r.status} |" + " |" * 9)
+                continue
             lines.append(
                 f"| {r.light_deg_true:g} | {r.albedo_true:g} | {r.k_true:g} | {_fmt(r.paper_light_deg_est, 4)} | {_fmt(r.light_deg_est, 5)} "
                 f"| {_fmt(r.light_dir_err_deg, 5)} | {_fmt(r.paper_albedo_est, 3)} | {_fmt(r.albedo_est, 5)} | {_fmt(r.albedo_rmse, 5)} "
-                f"| {_fmt(r.paper_k_est, 3)} | {_fmt(r.k_est, 5)} | {_fmt(r.k_rmse, 5)} | {r.n_points} | {r.n_obs} |"
+                f"| {_fmt(r.paper_k_est, 3)} | {_fmt(r.k_est, 5)} | {_fmt(r.k_rmse, 5)} | {r.n_points:.0f} | {r.n_obs:.0f} |"
             )
         worst = group.loc[:, ["light_deg_err", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse"]].abs().max()
         lines += ["", "Worst over the sets (absolute): " + ", ".join(f"{name} {value:.2g}" for name, value in worst.items()), ""]
@@ -134,14 +156,13 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
 
 def collect_sweep(summary_paths) -> pd.DataFrame:
     """The summary rows of a sweep, with every column they have (Table 1's first)."""
-    rows = [json.loads(Path(path).read_text()) for path in summary_paths]
-    table = without_timings(pd.DataFrame(rows))
+    table = without_timings(_rows_with_status(summary_paths))
     ordered = [c for c in TABLE1_COLUMNS if c in table] + [c for c in table if c not in TABLE1_COLUMNS]
     return table[ordered].sort_values(["method", "set_id"], kind="stable").reset_index(drop=True)
 
 
 SWEEP_MARKDOWN_COLUMNS = {
-    "set_id": ("set", None), "light_dir_err_deg": ("light dir err (deg)", 5), "albedo_err": ("albedo err", 5),
+    "set_id": ("set", None), "status": ("status", None), "light_dir_err_deg": ("light dir err (deg)", 5), "albedo_err": ("albedo err", 5),
     "albedo_rmse": ("albedo RMSE", 5), "k_err": ("k err", 5), "k_rmse": ("k RMSE", 5), "n_points": ("points", None),
     "efficiency_albedo": ("efficiency albedo", 3), "efficiency_k": ("efficiency k", 3),
     "light_std_deg_bound": ("light std bound (deg)", 4), "light_err_sigma": ("light err / bound std", 2),
@@ -153,9 +174,10 @@ def sweep_markdown(table: pd.DataFrame, sweep: str) -> str:
     lines = [f"# {titles.get(sweep, sweep)}", ""]
     columns = [c for c in SWEEP_MARKDOWN_COLUMNS if c in table]
     for method, group in table.groupby("method", sort=False):
-        lines += [f"## {method}", "", "| " + " | ".join(SWEEP_MARKDOWN_COLUMNS[c][0] for c in columns) + " |", "|" + "---|" * len(columns)]
+        lines += [f"## {method}", "", status_counts_line(group, keys=("set_id",)), ""]
+        lines += ["| " + " | ".join(SWEEP_MARKDOWN_COLUMNS[c][0] for c in columns) + " |", "|" + "---|" * len(columns)]
         for _, row in group.iterrows():
-            cells = [str(row[c]) if SWEEP_MARKDOWN_COLUMNS[c][1] is None else _fmt(row[c], SWEEP_MARKDOWN_COLUMNS[c][1]) for c in columns]
+            cells = [text_cell(row[c]) if SWEEP_MARKDOWN_COLUMNS[c][1] is None else _fmt(row[c], SWEEP_MARKDOWN_COLUMNS[c][1]) for c in columns]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
@@ -250,9 +272,23 @@ def _monte_carlo_row(draws: pd.DataFrame) -> dict:
 
 
 def monte_carlo_summary(draws: pd.DataFrame) -> pd.DataFrame:
-    """One row per set from the per-draw rows of ``noise_monte_carlo``, then one row ``all`` pooling every draw."""
-    rows = [{"set_id": set_id, "noise_level": group["noise_level"].iloc[0], **_monte_carlo_row(group)} for set_id, group in draws.groupby("set_id", sort=True)]
-    rows.append({"set_id": "all", "noise_level": draws["noise_level"].iloc[0], **_monte_carlo_row(draws)})
+    """One row per set from the per-draw rows of ``noise_monte_carlo``, then one row ``all`` pooling every draw.
+
+    Only the draws whose ``status`` is ok count; a set with none has its
+    first failure's reason as its status and no numbers.
+    """
+    draws = draws.assign(status=draws["status"].fillna(OK)) if "status" in draws else draws.assign(status=OK)
+    ok = draws[draws.status == OK]
+
+    def summary(group, name):
+        good = group[group.status == OK]
+        if good.empty:
+            return {"set_id": name, "noise_level": group["noise_level"].iloc[0], "status": group.status.iloc[0], "draws": 0}
+        failed = len(group) - len(good)
+        return {"set_id": name, "noise_level": group["noise_level"].iloc[0], "status": OK if not failed else f"{OK} ({failed} draws failed)", **_monte_carlo_row(good)}
+
+    rows = [summary(group, set_id) for set_id, group in draws.groupby("set_id", sort=True)]
+    rows.append(summary(ok if not ok.empty else draws, "all"))
     table = pd.DataFrame(rows)
     table["light_std_deg_bound"] = table["light_std_deg_bound"].where(table["set_id"] != "all")  # a mean over sets means nothing
     return table
@@ -266,11 +302,16 @@ def monte_carlo_markdown(table: pd.DataFrame) -> str:
         "For an efficient estimator: light RMS / bound 1, mean squared Mahalanobis distance 2, "
         "0.95-0.98 of the draws within 2 sigma, efficiencies 1.",
         "",
+        status_counts_line(table[table.set_id != "all"].assign(status=table.status.str.replace(r" \(.*", "", regex=True)), "sets"),
+        "",
         "| set | draws | light std bound (deg) | light RMS (deg) | RMS / bound | mean Mahalanobis^2 | within 2 sigma "
         "| efficiency albedo | efficiency k | worst draw albedo | worst draw k |",
         "|" + "---|" * 11,
     ]
     for _, r in table.iterrows():
+        if r.draws == 0:
+            lines.append(f"| {r.set_id} | 0 | {r.status} |" + " |" * 8)
+            continue
         lines.append(
             f"| {r.set_id} | {r.draws} | {_fmt(r.light_std_deg_bound, 4)} | {_fmt(r.light_rms_deg, 4)} | {_fmt(r.light_rms_over_bound, 2)} "
             f"| {_fmt(r.light_mahalanobis2_mean, 2)} | {_fmt(r.light_within_2sigma, 2)} | {_fmt(r.efficiency_albedo, 3)} | {_fmt(r.efficiency_k, 3)} "

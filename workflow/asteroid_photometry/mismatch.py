@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import cameras, model_fit, noise, observe, photometry, render, render_models
+from . import cameras, files, model_fit, noise, observe, photometry, render, render_models
 from .estimate import Observations
 
 log = logging.getLogger(__name__)
@@ -67,10 +67,12 @@ def render_model_set(shape_npz, cameras_json, model: str, params: dict, light_an
         import drjit as dr
 
         dr.set_thread_count(int(threads))
+    part = files.partial_directory(out_dir)  # renamed to out_dir when the whole set is written
     render.render_image_set(
         shape["vertices_m"], shape["faces"], geometry, None, None, cameras.light_dir_cam(light_angle_deg), samples_per_pixel,
-        out_dir, seed=seed, variant=variant, bsdf=render_models.bsdf_dict(model, params),
+        part, seed=seed, variant=variant, bsdf=render_models.bsdf_dict(model, params),
     )
+    files.move_into_place(part, out_dir)
 
 
 def _sampled_observations(geometry_npz, render_dir) -> tuple[Observations, dict]:
@@ -200,7 +202,7 @@ def fit_model_set(geometry_npz, render_dir, model: str, light_angle_deg: float, 
     fisher_sigma = np.sqrt(noise.observation_variance(obs.brightness, noise.sensor_from_config(sensor_entry))) if sensor_entry else np.full(obs.n_obs, settings["fisher_sigma"])
     for row in fisher_rows(obs, model, truth, settings["fit"][model], light, fisher_sigma):
         rows.append({**base, "noise": sensor_entry["name"] if sensor_entry else "sigma", **row})
-    Path(out_json).write_text(json.dumps(rows, indent=1))
+    files.write_json(out_json, rows)
 
 
 def phase_sweep_set(geometry_npz, render_dir, light_angle_deg: float, out_json) -> None:
@@ -236,7 +238,7 @@ def phase_sweep_set(geometry_npz, render_dir, light_angle_deg: float, out_json) 
     row["k_images_minus_law"] = row["k_images"] - row["k_law"]
     log.info("phase %g deg: Minnaert k %.4f from images, %.4f from the law (%.4f with the true light); light error %.3f deg",
              light_angle_deg, row["k_images"], row["k_law"], row["k_law_true_light"], row["light_err_deg"])
-    Path(out_json).write_text(json.dumps([row], indent=1))
+    files.write_json(out_json, [row])
 
 
 # --------------------------------------------------------------------------
@@ -336,9 +338,9 @@ def write_tables(json_paths, out_csv, out_markdown, out_phase_png, out_bic_png) 
     import matplotlib.pyplot as plt
 
     table = collect(json_paths)
-    table.to_csv(out_csv, index=False)
+    files.write_csv(table, out_csv)
     selection = model_selection(table) if (table.experiment == "cross_fit").any() else pd.DataFrame()
-    Path(out_markdown).write_text(markdown(table, selection))
+    files.write_text(out_markdown, markdown(table, selection))
 
     sweep = table[table.experiment == "phase_sweep"].sort_values("light_angle_deg")
     figure, (axis_k, axis_light) = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -353,7 +355,7 @@ def write_tables(json_paths, out_csv, out_markdown, out_phase_png, out_bic_png) 
     axis_k.legend(fontsize=8)
     axis_light.legend(fontsize=8)
     figure.tight_layout()
-    figure.savefig(out_phase_png, dpi=120)
+    files.save_figure(figure, out_phase_png, dpi=120)
     plt.close(figure)
 
     figure, axes = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -370,6 +372,6 @@ def write_tables(json_paths, out_csv, out_markdown, out_phase_png, out_bic_png) 
         axis.set_title(f"log10 residual RMS, noise: {noise_name}", fontsize=9)
         figure.colorbar(image, ax=axis)
     figure.tight_layout()
-    figure.savefig(out_bic_png, dpi=120)
+    files.save_figure(figure, out_bic_png, dpi=120)
     plt.close(figure)
     log.info("model mismatch: %d rows", len(table))

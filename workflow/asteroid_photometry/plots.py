@@ -84,6 +84,15 @@ def plot_error_maps_on_body(centroids_m: np.ndarray, estimates: dict, title: str
     plot_values_on_body({name: (centroids_m[fitted], value) for name, value in values.items()}, title, out_path)
 
 
+def plot_message(text: str, out_path) -> None:
+    """A figure that says why there is nothing to draw (a failed set)."""
+    fig, ax = plt.subplots(figsize=(8, 3))
+    ax.axis("off")
+    ax.text(0.5, 0.5, "\n".join(textwrap.fill(line, 90) for line in text.splitlines()), ha="center", va="center", fontsize=10, transform=ax.transAxes)
+    files.save_figure(fig, out_path, dpi=110)
+    plt.close(fig)
+
+
 def _scale_limit(values) -> float:
     values = np.abs(np.concatenate([np.ravel(v) for v in values]))
     return max(float(np.percentile(values[np.isfinite(values)], 99)), 1e-12)
@@ -136,7 +145,8 @@ def plot_table2_stages(table: pd.DataFrame, method: str, out_path) -> None:
 
     One line per set and prior setting; dashed: the bounds the issue asks for after refinement.
     """
-    rows = table[(table.method == method) & table.registration_ok.fillna(False).astype(bool)]
+    ok = table["status"] == "ok" if "status" in table else True
+    rows = table[(table.method == method) & table.registration_ok.fillna(False).astype(bool) & ok]
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
     for ax, key, label in zip(axes, ("light_dir_err_deg", "albedo_err", "k_err"), ("light direction error (deg)", "|albedo error|", "|k error|")):
         bound = TABLE2_BOUNDS[key]

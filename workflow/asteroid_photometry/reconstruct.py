@@ -153,6 +153,9 @@ DEFAULT_TONE_CURVE = "linear"
 #: Over-fitting flag: residual RMS below this fraction of the RMS expected from navigation noise alone.
 DEFAULT_OVERFIT_RATIO = 0.5
 
+#: A model of fewer registered images is no reconstruction (``DataFailure``): it cannot be aligned or scored.
+MIN_REGISTERED_IMAGES = 3
+
 
 # --------------------------------------------------------------------------------------------
 # Images
@@ -801,9 +804,14 @@ def reconstruct_images(
     tick = time.perf_counter()
     models = pycolmap.incremental_mapping(database_path, image_dir, mapper_dir, options["mapping"])
     stage_seconds["mapping"] = time.perf_counter() - tick
-    if not models:
-        raise RuntimeError(f"pycolmap registered no model from the {len(images)} images in {image_dir}")
     sizes = {key: model.num_reg_images() for key, model in models.items()}
+    if max(sizes.values(), default=0) < MIN_REGISTERED_IMAGES:
+        from .failures import DataFailure
+
+        raise DataFailure(
+            f"pycolmap registered {max(sizes.values(), default=0)} of {len(images)} images in its largest model "
+            f"(at least {MIN_REGISTERED_IMAGES} needed; {n_verified_pairs} verified image pairs)"
+        )
     model = models[max(sizes, key=sizes.get)]
     log.info("mapper: %d model(s) with %s registered images; keeping the largest", len(models), sorted(sizes.values(), reverse=True))
 

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .failures import DataFailure
 from .shape import facet_geometry
 
 logger = logging.getLogger(__name__)
@@ -333,6 +334,23 @@ class RegistrationResult:
     success_rms_rel: float
     success_fitness: float
     success_ambiguity: float
+    plausible_scale: bool = True
+
+    @property
+    def failure_reason(self) -> str | None:
+        """Why ``success`` is False, in words (None when it is True)."""
+        if self.success:
+            return None
+        reasons = []
+        if not self.ambiguity < self.success_ambiguity and np.isfinite(self.ambiguity):
+            reasons.append(f"no unambiguous pose (another pose fits nearly as well: ambiguity {self.ambiguity:.2f}, limit {self.success_ambiguity:g})")
+        if not self.fitness > self.success_fitness:
+            reasons.append(f"fitness {self.fitness:.2f} of the points on the surface (needs > {self.success_fitness:g})")
+        if not self.rms_distance_rel < self.success_rms_rel:
+            reasons.append(f"inlier RMS {100 * self.rms_distance_rel:.2f} % of the body length (limit {100 * self.success_rms_rel:g} %)")
+        if not self.plausible_scale:
+            reasons.append(f"implausible scale {self.scale:.3g}")
+        return "registration failed: " + "; ".join(reasons or ["no pose found"])
 
     @property
     def seconds(self) -> float:
@@ -368,6 +386,7 @@ class RegistrationResult:
             "success_rms_rel": self.success_rms_rel,
             "success_fitness": self.success_fitness,
             "success_ambiguity": self.success_ambiguity,
+            "plausible_scale": self.plausible_scale,
         }
 
 
@@ -573,7 +592,7 @@ def register_to_shape(
         ``outlier_distance_ratio`` times the median of that over the cloud.
 
     Returns a :class:`RegistrationResult`. Raises ValueError for malformed
-    input or fewer than 30 usable points.
+    input, :class:`DataFailure` for fewer than 30 usable points.
     """
     import open3d as o3d
 
@@ -595,7 +614,7 @@ def register_to_shape(
     points_in = points[finite]
     normals_in = None if normals is None else normals[finite]
     if len(points_in) < 30:
-        raise ValueError(f"need at least 30 finite points to register, got {len(points_in)}")
+        raise DataFailure(f"need at least 30 finite points to register, got {len(points_in)}")
     if not global_search and init_transform is None:
         raise ValueError("global_search=False needs an init_transform")
 
@@ -619,7 +638,7 @@ def register_to_shape(
     rough_radius = float(np.median(np.linalg.norm(points_in - rough_centre, axis=1)))
     target_median_radius = float(np.median(np.linalg.norm(target_points - target_centre, axis=1)))
     if not rough_radius > 0:
-        raise ValueError("the points have no extent (all at one place)")
+        raise DataFailure("the points have no extent (all at one place)")
     if estimate_scale:
         rough_scale = target_median_radius / rough_radius
     else:
@@ -630,7 +649,7 @@ def register_to_shape(
         np.flatnonzero(_dense_points(np.asarray(source_fine.points), outlier_neighbours, outlier_distance_ratio))
     )
     if len(source_fine.points) < 30:
-        raise ValueError(f"fewer than 30 points left after thinning and outlier removal ({len(source_fine.points)})")
+        raise DataFailure(f"fewer than 30 points left after thinning and outlier removal ({len(source_fine.points)})")
     source_centre, source_radius = _centre_and_rms_radius(np.asarray(source_fine.points))
     if normals_in is None:
         # Orient estimated normals away from the centroid (right for most of a
@@ -829,4 +848,5 @@ def register_to_shape(
         success_rms_rel=success_rms_rel,
         success_fitness=success_fitness,
         success_ambiguity=success_ambiguity,
+        plausible_scale=bool(chosen.plausible),
     )

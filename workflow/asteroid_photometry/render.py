@@ -386,7 +386,9 @@ def read_image(path: Path) -> np.ndarray:
     try:
         bitmap = mi.Bitmap(str(path))
     except Exception as error:  # Mitsuba raises plain RuntimeErrors
-        raise ValueError(f"cannot read image {path}: {error}") from error
+        from .failures import BadInput
+
+        raise BadInput(f"cannot read image {path}: {error}; expected a linear float EXR") from error
     array = np.array(bitmap, dtype=np.float64)
     return array[..., 0] if array.ndim == 3 else array
 

@@ -37,12 +37,13 @@ from . import estimate, files, metrics
 from .cameras import Intrinsics
 from .experiment import ImageSet
 from .metrics import TABLE2_BOUNDS
-from .stages import load_observations, load_shape_npz, read_rendered_images, run_estimator, truth_from_arrays
+from .failures import OK, DataFailure, record, status_counts_line, table_status
+from .stages import load_observations, load_shape_npz, read_rendered_images, require_observations, run_estimator, truth_from_arrays
 
 log = logging.getLogger(__name__)
 
 MEDIAN_ABS_STANDARD_NORMAL = 0.6744897501960817
-COLUMNS = ["set_id", "variant", "normal_error_deg", "normal_error_deg_median", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse", "n_points", "n_obs"]
+COLUMNS = ["set_id", "status", "variant", "normal_error_deg", "normal_error_deg_median", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse", "n_points", "n_obs"]
 
 
 TILT_DIRECTIONS = ("random", "latitude", "longitude")
@@ -108,8 +109,8 @@ def _row(set_id, variant, normal_error_deg, measured_deg, result, truth) -> dict
     from .table2 import plausible_points
 
     summary = metrics.summary_row(set_id, plausible_points(result), truth)  # scored as Table 2 scores its cloud
-    row = {"set_id": set_id, "variant": variant, "normal_error_deg": normal_error_deg, "normal_error_deg_median": measured_deg}
-    row.update({key: summary[key] for key in COLUMNS[4:]})
+    row = {"set_id": set_id, "status": table_status(), "variant": variant, "normal_error_deg": normal_error_deg, "normal_error_deg_median": measured_deg}
+    row.update({key: summary[key] for key in COLUMNS[5:]})
     return row
 
 
@@ -118,8 +119,17 @@ def sensitivity_set(observations_npz, render_dir, shape_npz, image_set: ImageSet
 
     ``observation_settings``: Table 1's (config ``observations``), for the
     tilted normals; ``cloud_settings``: Table 2's (config ``reconstruction``),
-    for the true surface sampled as the cloud is.
+    for the true surface sampled as the cloud is. A set that failed gives one
+    row with the reason as its status.
     """
+    try:
+        rows = _sensitivity_rows(observations_npz, render_dir, shape_npz, image_set, settings, observation_settings, cloud_settings, set_id)
+    except DataFailure as failure:
+        rows = [{"set_id": set_id, "status": table_status(record("geometry_sensitivity", failure))}]
+    files.write_csv(pd.DataFrame(rows, columns=COLUMNS), out_csv)
+
+
+def _sensitivity_rows(observations_npz, render_dir, shape_npz, image_set: ImageSet, settings: dict, observation_settings: dict, cloud_settings: dict, set_id: str) -> list[dict]:
     from .table2 import truth_for_facets
 
     method = settings["estimator"]
@@ -152,15 +162,18 @@ def sensitivity_set(observations_npz, render_dir, shape_npz, image_set: ImageSet
             min_cos_emission=cloud_settings["min_cos_emission"], min_observations=cloud_settings["min_observations_per_point"],
             occlusion_tolerance=1e-3 * np.ptp(centroids, axis=0).max(), purity_tolerance=tolerance, surface=(vertices, faces),
         )
+        require_observations(obs)
         rows.append(_row(set_id, variant, 0.0, 0.0, run_estimator(obs, method, image_set), facet_truth))
         log.info("%s samples of the true surface: %s", variant, rows[-1])
-    files.write_csv(pd.DataFrame(rows, columns=COLUMNS), out_csv)
+    return rows
 
 
 def write_table(csv_paths, out_csv, out_markdown, out_plot) -> None:
     from .plots import plot_geometry_sensitivity
 
     table = pd.concat([pd.read_csv(path) for path in csv_paths], ignore_index=True)
+    if "status" not in table:
+        table.insert(1, "status", OK)
     files.write_csv(table, out_csv)
     files.write_text(out_markdown, sensitivity_markdown(table))
     plot_geometry_sensitivity(table, out_plot)
@@ -177,6 +190,8 @@ def sensitivity_markdown(table: pd.DataFrame, bounds: dict = TABLE2_BOUNDS) -> s
         "`image_purity`: the same, keeping only samples whose four bilinear pixels agree (decided from the image alone).",
         "",
         f"Bounds (Table 2 of the issue): light {bounds['light_dir_err_deg']} deg, |albedo err| {bounds['albedo_err']}, |k err| {bounds['k_err']}.",
+        "",
+        status_counts_line(table.groupby("set_id", sort=False).first().reset_index()) if "status" in table else "",
         "",
         "| variant | normal error (deg) | light err median / max (deg) | |albedo err| median / max | |k err| median / max | sets within all bounds | points (median) |",
         "|---|---|---|---|---|---|---|",

@@ -17,6 +17,7 @@ import pandas as pd
 
 from . import cameras, estimate, files, metrics, noise, observe, render, surface_maps
 from .experiment import ImageSet
+from .failures import BadInput, DataFailure, check_npz, check_status, record, status_counts_line, table_status, write_failed_npz, write_status_json
 
 log = logging.getLogger(__name__)
 
@@ -83,9 +84,19 @@ def write_linear_exr(path, image: np.ndarray) -> None:
 
 
 def add_noise_to_set(clean_dir, sensor_entry: dict, seed: int, out_dir) -> None:
-    """The clean set's images as the sensor of ``sensor_entry`` (a ``noise_levels`` entry) records them."""
+    """The clean set's images as the sensor of ``sensor_entry`` (a ``noise_levels`` entry) records them.
+
+    A clean set that failed (blank images) gives a noisy set marked failed:
+    ``frames.json`` with the status and the reason, no images.
+    """
     sensor = noise.sensor_from_config(sensor_entry)
-    frames, images = read_rendered_images(clean_dir)
+    try:
+        frames, images = read_rendered_images(clean_dir)
+    except DataFailure as failure:
+        part = files.partial_directory(out_dir)
+        write_status_json(part / "frames.json", record("add_noise", failure))
+        files.move_into_place(part, out_dir)
+        return
     rng = np.random.default_rng(seed)
     n_saturated = 0
     part = files.partial_directory(out_dir)
@@ -116,13 +127,74 @@ def write_observation_geometry(shape_npz, cameras_json, light_angle_deg, thresho
     obs_geometry.save(out_npz)
 
 
+def check_frames(frames: dict, frames_path: Path) -> None:
+    """Refuse a ``frames.json`` (the set's navigation file) without intrinsics, or whose images or poses are not all there and well formed."""
+    render_dir = frames_path.parent
+    intrinsics = frames.get("intrinsics")
+    if not isinstance(intrinsics, dict) or not all(isinstance(intrinsics.get(key), int) and intrinsics[key] > 0 for key in ("width", "height")):
+        raise BadInput(f"{frames_path}: expected 'intrinsics' with a positive integer 'width' and 'height', got {intrinsics!r}")
+    entries = frames.get("images")
+    if not isinstance(entries, list) or not entries:
+        raise BadInput(f"{frames_path}: expected a non-empty list 'images', one entry per image, got {entries!r}")
+    for position, entry in enumerate(entries):
+        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+            raise BadInput(f"{frames_path}: image entry {position} has no 'file' name: {entry!r}")
+        where = f"{frames_path}: image entry {position} ({entry['file']})"
+        if not (render_dir / entry["file"]).is_file():
+            raise BadInput(f"{where}: the image file {render_dir / entry['file']} is missing")
+        try:
+            pose = np.asarray(entry.get("body_to_camera"), dtype=float)
+        except (TypeError, ValueError):
+            pose = np.empty(0)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise BadInput(f"{where}: 'body_to_camera' must be a finite 4x4 matrix, got {entry.get('body_to_camera')!r}")
+        rotation = pose[:3, :3]
+        if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6) or np.linalg.det(rotation) <= 0 or not np.allclose(pose[3], [0, 0, 0, 1]):
+            raise BadInput(f"{where}: 'body_to_camera' must be a rigid transform (rotation with determinant +1, last row 0 0 0 1), got {pose.tolist()}")
+    listed = {entry["file"] for entry in entries}
+    unlisted = sorted(path.name for path in render_dir.glob("image_*.exr") if path.name not in listed)
+    if unlisted:
+        raise BadInput(f"{frames_path}: lists {len(entries)} images but not {', '.join(unlisted[:5])}{' ...' if len(unlisted) > 5 else ''} found beside it")
+
+
+def check_image(image: np.ndarray, path, intrinsics: dict) -> None:
+    """Refuse an image of another size than its intrinsics, or with NaN, infinite or negative pixels."""
+    expected = (intrinsics["height"], intrinsics["width"])
+    if image.shape != expected:
+        raise BadInput(f"{path}: the image is {image.shape[1] if image.ndim > 1 else '?'} x {image.shape[0]} px, but the intrinsics in frames.json say {expected[1]} x {expected[0]}")
+    bad = int(np.count_nonzero(~np.isfinite(image)))
+    if bad:
+        raise BadInput(f"{path}: {bad} NaN or infinite pixels; expected finite linear radiance")
+    negative = int(np.count_nonzero(image < 0))
+    if negative:
+        raise BadInput(f"{path}: {negative} negative pixels (lowest {image.min():.3g}); expected linear radiance >= 0")
+
+
 def read_rendered_images(render_dir) -> tuple[dict, list[np.ndarray]]:
+    """A rendered set's ``frames.json`` and images, checked (``check_frames``, ``check_image``).
+
+    Raises :class:`BadInput` for a malformed file; a set marked failed by
+    the stage that wrote it, or one with blank images (nothing above 0),
+    raises :class:`DataFailure`.
+    """
     render_dir = Path(render_dir)
     frames_path = render_dir / "frames.json"
     if not frames_path.exists():
         raise FileNotFoundError(f"{frames_path} is missing: {render_dir} is not a complete rendered set")
-    frames = json.loads(frames_path.read_text())
-    images = [render.read_image(render_dir / image["file"]) for image in frames["images"]]
+    try:
+        frames = json.loads(frames_path.read_text())
+    except json.JSONDecodeError as error:
+        raise BadInput(f"{frames_path}: not valid JSON ({error})") from None
+    check_status(frames, frames_path)
+    check_frames(frames, frames_path)
+    images = []
+    for entry in frames["images"]:
+        image = render.read_image(render_dir / entry["file"])
+        check_image(image, render_dir / entry["file"], frames["intrinsics"])
+        images.append(image)
+    blank = [entry["file"] for entry, image in zip(frames["images"], images) if not image.max() > 0]
+    if blank:
+        raise DataFailure(f"{len(blank)} of {len(images)} images are blank (no pixel above 0: {', '.join(blank[:3])}{' ...' if len(blank) > 3 else ''})")
     return frames, images
 
 
@@ -134,7 +206,7 @@ def observation_arrays(obs_geometry: observe.ObservationGeometry, frames: dict, 
     variance, as a real pipeline that knows its sensor would do.
     """
     if max(obs_geometry.image_index, default=-1) >= len(images):
-        raise ValueError(f"the observation geometry refers to image {obs_geometry.image_index.max()} but {render_dir} has {len(images)} images")
+        raise DataFailure(f"the set has {len(images)} images but the imaging geometry observes image {obs_geometry.image_index.max()}")
     brightness = observe.sample_brightness(obs_geometry, images)
     arrays = {name: getattr(obs_geometry, name) for name in obs_geometry.__dataclass_fields__}
     if "sensor" in frames:
@@ -160,15 +232,46 @@ def observation_arrays(obs_geometry: observe.ObservationGeometry, frames: dict, 
 
 
 def write_observations(geometry_npz, render_dir, out_npz) -> None:
-    """The brightness of every observation, sampled from the rendered images, with its geometry."""
-    frames, images = read_rendered_images(render_dir)
-    files.savez(out_npz, **observation_arrays(observe.ObservationGeometry.load(geometry_npz), frames, images, render_dir))
+    """The brightness of every observation, sampled from the rendered images, with its geometry (or the set's failure)."""
+    try:
+        frames, images = read_rendered_images(render_dir)
+        arrays = observation_arrays(observe.ObservationGeometry.load(geometry_npz), frames, images, render_dir)
+    except DataFailure as failure:
+        write_failed_npz(out_npz, record("observe", failure))
+        return
+    files.savez(out_npz, **arrays)
 
 
 def load_observations(path) -> tuple[estimate.Observations, dict]:
+    """A set's observations and all arrays of its file; raises the recorded :class:`DataFailure` of a failed set."""
     with np.load(path) as data:
+        check_npz(data, path)
         arrays = {name: data[name] for name in data.files}
     return observations_from_arrays(arrays), arrays
+
+
+#: A fit needs this many points with at least ``MIN_VIEWS_PER_POINT`` observations each (an albedo and k per point and the light).
+MIN_FIT_POINTS = 3
+MIN_VIEWS_PER_POINT = 3
+
+
+def require_observations(obs: estimate.Observations) -> None:
+    """Raise :class:`DataFailure` when the observations are too few to fit."""
+    seen = int(np.count_nonzero(obs.observations_per_point >= MIN_VIEWS_PER_POINT)) if obs.n_obs else 0
+    if seen < MIN_FIT_POINTS:
+        raise DataFailure(
+            f"too few observations to fit: {obs.n_obs} observations, {seen} points seen at least {MIN_VIEWS_PER_POINT} times "
+            f"(at least {MIN_FIT_POINTS} needed)"
+        )
+
+
+def failed_summary_row(set_id: str, method: str, image_set: ImageSet, reason: str) -> dict:
+    """A Table 1 row of a set that could not be fitted: its design (the config's values), the status, no numbers."""
+    return {
+        "set_id": set_id, "method": method, "status": table_status(reason), "light_deg_true": image_set.light_angle_deg,
+        "albedo_true": image_set.albedo, "k_true": image_set.minnaert_k,
+        "noise_level": image_set.noise_level, "surface_map": image_set.surface_map,
+    }
 
 
 def observations_from_arrays(arrays: dict) -> estimate.Observations:
@@ -197,12 +300,23 @@ def run_estimator(obs: estimate.Observations, method: str, image_set: ImageSet, 
 
 
 def fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, out_summary, set_id: str) -> None:
+    """One estimator on one set: per-point estimates and the summary row (a failed set's row carries the reason)."""
+    try:
+        _fit_set(observations_npz, image_set, method, out_estimates, out_summary, set_id)
+    except DataFailure as failure:
+        reason = record("fit", failure)
+        write_failed_npz(out_estimates, reason)
+        files.write_json(out_summary, failed_summary_row(set_id, method, image_set, reason))
+
+
+def _fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, out_summary, set_id: str) -> None:
     obs, arrays = load_observations(observations_npz)
+    require_observations(obs)
     result = run_estimator(obs, method, image_set, arrays.get("variance"))
     log.info("%s: %s after %d iterations, %.2f s: %s", method, "converged" if result.success else "NOT converged", result.n_iterations, result.fit_seconds, result.message)
     truth = truth_from_arrays(arrays)
     row = metrics.summary_row(set_id, result, truth)
-    row.update(noise_level=image_set.noise_level, surface_map=image_set.surface_map)
+    row.update(status=table_status(), noise_level=image_set.noise_level, surface_map=image_set.surface_map)
     if "sensor_json" in arrays and method != "iwano_linear":  # the bound is for per-point albedo and k
         row.update(cramer_rao_summary(obs, arrays, result))
     if getattr(result, "light_std_deg", None) is not None and np.isfinite(getattr(result, "light_std_deg", np.nan)):
@@ -251,7 +365,7 @@ def write_table1(summary_paths, paper_csv, out_csv, out_markdown) -> None:
     paper = pd.read_csv(paper_csv)
     files.write_csv(table, out_csv)
     files.write_text(out_markdown, metrics.table1_markdown(table, paper))
-    log.info("Table 1: %d rows", len(table))
+    log.info("Table 1: %s", status_counts_line(table, "rows"))
 
 
 def write_table1_plots(table_csv, estimate_paths, outputs) -> None:
@@ -265,6 +379,8 @@ def write_table1_plots(table_csv, estimate_paths, outputs) -> None:
     for path in estimate_paths:
         path = Path(path)
         with np.load(path) as data:
+            if "status" in data.files:  # a failed set: no estimates to draw
+                continue
             estimates[(path.parent.name, path.stem)] = {name: data[name] for name in data.files}
     plots.plot_per_point_errors(estimates, outputs["per_point"])
 
@@ -281,7 +397,7 @@ def write_sweep_table(summary_paths, sweep: str, out_csv, out_markdown) -> None:
     table = metrics.collect_sweep(summary_paths)
     files.write_csv(table, out_csv)
     files.write_text(out_markdown, metrics.sweep_markdown(table, sweep))
-    log.info("%s sweep: %d rows", sweep, len(table))
+    log.info("%s sweep: %s", sweep, status_counts_line(table, "rows"))
 
 
 def write_noise_plot(noise_csv, out_png) -> None:
@@ -296,6 +412,9 @@ def write_error_map_plot(shape_npz, estimates_npz, title, out_png) -> None:
     shape = load_shape_npz(shape_npz)
     with np.load(estimates_npz) as data:
         estimates = {name: data[name] for name in data.files}
+    if "status" in estimates:
+        plots.plot_message(f"{title}\n\nno estimates: {estimates['reason']}", out_png)
+        return
     plots.plot_error_maps_on_body(shape["centroids_m"], estimates, title, out_png)
 
 
@@ -308,18 +427,27 @@ def noise_monte_carlo_set(geometry_npz, clean_dir, sensor_entry: dict, base_seed
     Cramer-Rao comparison of :func:`cramer_rao_summary`.
     """
     obs_geometry = observe.ObservationGeometry.load(geometry_npz)
-    frames, clean = read_rendered_images(clean_dir)
     sensor = noise.sensor_from_config(sensor_entry)
+    try:
+        frames, clean = read_rendered_images(clean_dir)
+    except DataFailure as failure:
+        files.write_csv(pd.DataFrame([{"set_id": set_id, "noise_level": sensor.name, "status": table_status(record("noise_monte_carlo", failure))}]), out_csv)
+        return
     frames = dict(frames, sensor=sensor.to_dict())
     rows = []
     for draw in range(1, realisations + 1):
         rng = np.random.default_rng([int(base_seed), draw])
-        arrays = observation_arrays(obs_geometry, frames, [noise.apply_sensor_noise(image, sensor, rng) for image in clean], clean_dir)
-        obs = observations_from_arrays(arrays)
-        result = run_estimator(obs, "varpro", image_set, arrays["variance"])
-        truth = truth_from_arrays(arrays)
-        row = metrics.summary_row(set_id, result, truth)
-        row.update(noise_level=sensor.name, draw=draw, **cramer_rao_summary(obs, arrays, result))
+        noisy = [noise.apply_sensor_noise(image, sensor, rng) for image in clean]
+        try:
+            arrays = observation_arrays(obs_geometry, frames, noisy, clean_dir)
+            obs = observations_from_arrays(arrays)
+            require_observations(obs)
+            result = run_estimator(obs, "varpro", image_set, arrays["variance"])
+            row = metrics.summary_row(set_id, result, truth_from_arrays(arrays))
+        except DataFailure as failure:
+            rows.append({"set_id": set_id, "noise_level": sensor.name, "draw": draw, "status": table_status(record("noise_monte_carlo", failure))})
+            continue
+        row.update(status=table_status(), noise_level=sensor.name, draw=draw, **cramer_rao_summary(obs, arrays, result))
         log.info("draw %d: light %.3f deg (%.2f sigma), efficiency albedo %.2f, k %.2f", draw, row["light_dir_err_deg"], row["light_err_sigma"], row["efficiency_albedo"], row["efficiency_k"])
         rows.append(row)
     files.write_csv(metrics.without_timings(pd.DataFrame(rows)), out_csv)
@@ -338,6 +466,9 @@ def write_table2_plots(table_csv, cloud_errors_npz, method: str, title: str, out
 
     plots.plot_table2_stages(pd.read_csv(table_csv), method, out_stages_png)
     with np.load(cloud_errors_npz) as data:
+        if "status" in data.files:
+            plots.plot_message(f"{title}\n\nno cloud: {data['reason']}", out_cloud_png)
+            return
         # The refinement moves the samples: the refined errors belong to other points.
         before, after = data["points_body"], data["points_body_refined"]
         values = {

@@ -26,6 +26,7 @@ import pandas as pd
 from . import cloud as cloud_lib
 from . import estimate, files, metrics, quality, reconstruct, refine, register
 from .cameras import Intrinsics
+from .failures import OK, DataFailure, check_npz, check_status, record, status_counts_line, table_status, write_failed_npz, write_status_json
 from .stages import FACET_MAPS_FILE, load_shape_npz, read_rendered_images
 
 log = logging.getLogger(__name__)
@@ -34,6 +35,9 @@ PAPER_TABLE2 = {"light_deg_est": 4.21, "light_deg_true": 0.0, "albedo_est": 0.57
 
 
 MAX_MAPPER_SEEDS = 4
+#: Fewer cloud points seen often enough than this is no model of the body (nor enough to register).
+MIN_CLOUD_POINTS = 30
+STATUS_FILE = "status.json"
 
 
 def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3) -> float:
@@ -44,11 +48,30 @@ def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3
     body can land in (the cameras then come out turned by 180 degrees and the
     surface is seen from inside).
     """
-    _, xyz = recon.points3d()
-    tracks = recon.tracks()
-    oriented = cloud_lib.oriented_cloud(xyz, tracks["point"], tracks["image"], recon.camera_centres(), min_track=min_track)
+    oriented = oriented_cloud_of(recon, min_track)
     outward = np.einsum("ij,ij->i", oriented.normals, oriented.points - oriented.points.mean(axis=0)) > 0
     return float(outward.mean())
+
+
+def oriented_cloud_of(recon: reconstruct.SparseReconstruction, min_track: int) -> cloud_lib.OrientedCloud:
+    """The reconstruction's oriented cloud (``cloud.oriented_cloud``); :class:`DataFailure` if too few points are seen often enough."""
+    _, xyz = recon.points3d()
+    tracks = recon.tracks()
+    n_tracked = int(np.count_nonzero(np.bincount(tracks["point"], minlength=len(xyz)) >= min_track))
+    if n_tracked < MIN_CLOUD_POINTS:
+        raise DataFailure(
+            f"the model of {recon.report.n_images_registered} images has {n_tracked} points seen in at least {min_track} images "
+            f"(at least {MIN_CLOUD_POINTS} needed)"
+        )
+    return cloud_lib.oriented_cloud(xyz, tracks["point"], tracks["image"], recon.camera_centres(), min_track=min_track)
+
+
+def read_reconstruction(reconstruction_dir) -> reconstruct.SparseReconstruction:
+    """The output of ``reconstruct_stage``; raises its recorded :class:`DataFailure` if it failed."""
+    status_path = Path(reconstruction_dir) / STATUS_FILE
+    if status_path.exists():
+        check_status(json.loads(status_path.read_text()), status_path)
+    return reconstruct.SparseReconstruction.read(reconstruction_dir)
 
 
 def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
@@ -57,13 +80,28 @@ def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, thr
     A model whose surface faces inwards (``outward_fraction`` below 0.5) is
     the depth-reversed twin, not the body: the mapper is run again with the
     next seed, up to ``MAX_MAPPER_SEEDS`` times, and the attempts are logged
-    and recorded in the report's settings.
+    and recorded in the report's settings. ``status.json`` in ``out_dir``
+    says ``ok``, or ``failed`` with the reason: too few images registered
+    (``reconstruct.MIN_REGISTERED_IMAGES``), fewer than ``MIN_CLOUD_POINTS``
+    points, a depth-reversed model on every seed, a blank set.
     """
+    out_dir = Path(out_dir)
+    try:
+        _reconstruct(render_dir, out_dir, use_priors, settings, threads)
+    except DataFailure as failure:
+        part = files.partial_directory(out_dir)
+        write_status_json(part / STATUS_FILE, record("reconstruct", failure))
+        files.move_into_place(part, out_dir)
+
+
+def _reconstruct(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
+    frames, images = read_rendered_images(render_dir)  # checked before any work
+    poses = np.array([image["body_to_camera"] for image in frames["images"]], dtype=float)
     attempts = []
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     for seed in range(MAX_MAPPER_SEEDS):
-        result = reconstruct.reconstruct_set(
-            render_dir, part / "work",
+        result = reconstruct.reconstruct_images(
+            images, Intrinsics(**frames["intrinsics"]), part / "work", true_body_to_camera=poses,
             intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
             camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
             prior_seed=settings["prior_seed"], num_threads=threads, seed=seed,
@@ -71,38 +109,65 @@ def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, thr
                 min_pose_inliers=settings["min_pose_inliers"], min_pose_inlier_ratio=settings["min_pose_inlier_ratio"],
             ),
         )
+        n_registered = result.report.n_images_registered
         fraction = outward_fraction(result, settings["min_track"])
-        attempts.append({"seed": seed, "outward_fraction": fraction, "n_images_registered": result.report.n_images_registered})
+        attempts.append({"seed": seed, "outward_fraction": fraction, "n_images_registered": n_registered})
         if fraction >= 0.5:
             break
         log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
+    else:
+        raise DataFailure(
+            f"the model is depth-reversed (seen from inside) on all {MAX_MAPPER_SEEDS} mapper seeds: outward fractions "
+            + ", ".join(f"{attempt['outward_fraction']:.2f}" for attempt in attempts)
+        )
     result.report.settings["mapper_attempts"] = attempts
     result.write(part)
+    write_status_json(part / STATUS_FILE)
     files.move_into_place(part, out_dir)
     log.info("reconstruction: %s", json.dumps(result.report.to_dict()))
 
 
 def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_json) -> None:
-    """The oriented cloud of a reconstruction, registered to the shape model and scored."""
-    recon = reconstruct.SparseReconstruction.read(reconstruction_dir)
-    shape = load_shape_npz(shape_npz)
-    _, xyz = recon.points3d()
-    tracks = recon.tracks()
-    oriented = cloud_lib.oriented_cloud(xyz, tracks["point"], tracks["image"], recon.camera_centres(), min_track=settings["min_track"])
-    in_body_frame = recon.report.world_frame == "body"
-    result = register.register_to_shape(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], estimate_scale=not in_body_frame)
-    scores = quality.reconstruction_quality(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], transform=result.transform)
-    files.savez(out_npz, points=oriented.points, normals=oriented.normals, track_length=oriented.track_length, transform=result.transform)
+    """The oriented cloud of a reconstruction, registered to the shape model and scored.
+
+    A failed registration (``RegistrationResult.failure_reason``), or a failed
+    reconstruction passed on, is written as ``status: failed`` with the
+    reason: its transform is wrong, and nothing is scored through it.
+    """
+    try:
+        recon = read_reconstruction(reconstruction_dir)
+        shape = load_shape_npz(shape_npz)
+        oriented = oriented_cloud_of(recon, settings["min_track"])
+        in_body_frame = recon.report.world_frame == "body"
+        result = register.register_to_shape(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], estimate_scale=not in_body_frame)
+    except DataFailure as failure:
+        reason = record("register_cloud", failure)
+        write_failed_npz(out_npz, reason)
+        write_status_json(out_json, reason, registration_ok=False)
+        return
     summary = {
         "registration_ok": bool(result.success),
         "registration_seconds": float(result.seconds_global + result.seconds_icp),
         "registration_rms_rel": float(result.rms_distance_rel),
         "registration_scale": float(result.scale),
+        "registration_fitness": float(result.fitness),
+        "registration_ambiguity": float(result.ambiguity),
+        "n_cloud_points": int(len(oriented.points)),
+    }
+    if not result.success:
+        reason = record("register_cloud", DataFailure(result.failure_reason))
+        write_failed_npz(out_npz, reason)
+        write_status_json(out_json, reason, **summary)
+        return
+    scores = quality.reconstruction_quality(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], transform=result.transform)
+    files.savez(out_npz, points=oriented.points, normals=oriented.normals, track_length=oriented.track_length, transform=result.transform)
+    summary = {
+        "status": OK,
+        **summary,
         "accuracy_rel_median": scores.accuracy_median_rel,
         "accuracy_m_median": scores.accuracy_median_m,
         "completeness": scores.completeness,
         "normal_err_deg_median": scores.normal_error_median_deg,
-        "n_cloud_points": int(len(oriented.points)),
     }
     files.write_json(out_json, summary)
     log.info("registration and quality: %s", summary)
@@ -116,15 +181,28 @@ def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dic
     the light again to the pure samples, with one k for the body
     (``PureSampleCloud.refined_light_dir_cam``). Only the cloud's
     points and normals are read from the registration file: its transform
-    to the shape model is not used.
+    to the shape model is not used; but a set whose registration failed
+    cannot be scored, and is passed on (``status: failed``) unrefined.
     """
-    recon = reconstruct.SparseReconstruction.read(reconstruction_dir)
+    try:
+        pure = _refine(registration_npz, reconstruction_dir, render_dir, settings)
+    except DataFailure as failure:
+        write_failed_npz(out_npz, record("refine_cloud", failure))
+        return
+    pure.save(out_npz)
+    log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
+
+
+def _refine(registration_npz, reconstruction_dir, render_dir, settings: dict) -> refine.PureSampleCloud:
     with np.load(registration_npz) as data:
+        check_npz(data, registration_npz)
         oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+    recon = read_reconstruction(reconstruction_dir)
     _, images = read_rendered_images(render_dir)
     poses = recon.body_to_camera()
     surface = cloud_lib.poisson_surface(oriented)
     obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
+    require_cloud_observations(obs, settings, "the cloud")
     start = estimate.fit_koizumi_lm(obs)
     fitted = np.isfinite(start.albedo) & np.isfinite(start.minnaert_k)
     albedo, minnaert_k = float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
@@ -135,14 +213,19 @@ def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dic
         min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
         axis=refine.spin_axis(list(recon.camera_centres().values())),
     )
-    if pure.observations.n_obs < 10 * settings["min_observations_per_point"]:
-        raise RuntimeError(
-            f"{reconstruction_dir}: the refinement kept {len(pure.points)} of {pure.n_candidates} candidate points "
-            f"({pure.observations.n_obs} pure samples); too few to fit. Raise reconstruction.refine_candidates, "
-            f"reconstruction.refine_purity_tolerance or reconstruction.refine_max_residual"
+    if pure.observations.n_obs < 10 * settings["min_observations_per_point"] or not np.all(np.isfinite(pure.refined_light_dir_cam)):
+        raise DataFailure(
+            f"the refinement kept {len(pure.points)} of {pure.n_candidates} candidate points "
+            f"({pure.observations.n_obs} pure samples); too few to fit (more with a larger reconstruction.refine_candidates, "
+            f"refine_purity_tolerance or refine_max_residual)"
         )
-    pure.save(out_npz)
-    log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
+    return pure
+
+
+def require_cloud_observations(obs, settings: dict, what: str) -> None:
+    """:class:`DataFailure` unless ``obs`` has at least ten points' worth of observations (the fits' own minimum)."""
+    if obs.n_obs < 10 * settings["min_observations_per_point"]:
+        raise DataFailure(f"{what} gives only {obs.n_obs} usable observations of {int(np.count_nonzero(obs.observations_per_point))} points; nothing to fit")
 
 
 def cloud_observations_of(oriented, recon, images, settings: dict, surface=None):
@@ -246,14 +329,45 @@ K_SPREAD_WARNING = 0.015
 
 
 def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method: str, set_id: str, priors: str, settings: dict, out_json, out_npz) -> None:
-    """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``); scored against the shape model."""
-    recon = reconstruct.SparseReconstruction.read(reconstruction_dir)
+    """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``); scored against the shape model.
+
+    A set that failed here or before (reconstruction, registration,
+    refinement) gets a row with its ``status`` (the reason), what is known
+    of its reconstruction and registration, and no estimates.
+    """
+    try:
+        row, errors = _fit_cloud(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method, set_id, priors, settings)
+    except DataFailure as failure:
+        reason = record("fit_cloud", failure)
+        row = {"set_id": set_id, "priors": priors, "method": method, "status": table_status(reason)}
+        report_path = Path(reconstruction_dir) / "report.json"
+        if report_path.exists():
+            report = json.loads(report_path.read_text())
+            row.update(n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"])
+        registration = json.loads(Path(registration_json).read_text())
+        row.update({key: value for key, value in registration.items() if key not in ("status", "reason")})
+        write_failed_npz(out_npz, reason)
+        files.write_json(out_json, row)
+        return
+    files.write_json(out_json, row)
+    files.savez(out_npz, **errors)
+    log.info("table 2 row: %s", json.dumps(row))
+
+
+def _fit_cloud(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
+    registration = json.loads(Path(registration_json).read_text())
+    check_status(registration, registration_json)  # a failed registration's transform is wrong: nothing is scored through it
+    with np.load(refined_npz) as data:
+        check_npz(data, refined_npz)
+    recon = read_reconstruction(reconstruction_dir)
     shape = load_shape_npz(shape_npz)
     with np.load(registration_npz) as data:
+        check_npz(data, registration_npz)
         oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
         transform = data["transform"]
     frames, images = read_rendered_images(render_dir)
     obs, _ = cloud_observations_of(oriented, recon, images, settings)
+    require_cloud_observations(obs, settings, f"the reconstruction ({recon.report.n_images_registered} images, {len(oriented.points)} cloud points)")
     query = register.SurfaceQuery(shape["vertices_m"], shape["faces"])
     points_body = register.transform_points(transform, oriented.points)
     surface_body, facets = query.closest(points_body)
@@ -263,11 +377,6 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
 
     known_k = float(np.median(k_true))  # Iwano's baseline is given k
     report = json.loads((Path(reconstruction_dir) / "report.json").read_text())
-    if obs.n_obs < 10 * settings["min_observations_per_point"]:
-        raise RuntimeError(
-            f"set {set_id}, priors {priors}: the reconstruction ({report['n_images_registered']} of {report['n_images']} images, "
-            f"{len(oriented.points)} cloud points) gives only {obs.n_obs} usable observations; nothing to fit"
-        )
     before = plausible_points(_run(method, obs, known_k))
     row = metrics.summary_row(set_id, before, truth)
 
@@ -321,28 +430,28 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
         n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"],
         cam_pos_rms_m=report.get("cam_pos_rms_m"), cam_pos_true_rms_m=report.get("cam_pos_true_rms_m"), prior_overfit=report.get("prior_overfit"),
     )
-    row.update(json.loads(Path(registration_json).read_text()))
-    if row.get("registration_ok"):
-        row.update(oracle_rows(method, oriented, transform, surface_body, facets, truth, shape, frames, recon, images, settings, known_k))
-    files.write_json(out_json, row)
-    files.savez(
-        out_npz, points_body=points_body, albedo_error=before.albedo - albedo_true, k_error=before.minnaert_k - k_true,
+    row.update(registration)
+    row["status"] = table_status()
+    row.update(oracle_rows(method, oriented, transform, surface_body, facets, truth, shape, frames, recon, images, settings, known_k))
+    errors = dict(
+        points_body=points_body, albedo_error=before.albedo - albedo_true, k_error=before.minnaert_k - k_true,
         normal_error_deg=normals_before, points_body_refined=refined_body,
         albedo_error_refined=after.albedo - albedo_true_refined, k_error_refined=after.minnaert_k - k_true_refined,
         normal_error_deg_refined=normals_after,
     )
-    log.info("table 2 row: %s", json.dumps(row))
+    return row, errors
 
 
-TABLE2_LEAD = ["set_id", "priors", "method"]
+TABLE2_LEAD = ["set_id", "priors", "method", "status"]
 
 
 def write_table2(summary_paths, out_csv, out_markdown) -> None:
-    rows = [json.loads(Path(path).read_text()) for path in summary_paths]
+    rows = [{"status": OK, **json.loads(Path(path).read_text())} for path in summary_paths]
     table = metrics.without_timings(pd.DataFrame(rows))
-    table = table[TABLE2_LEAD + [c for c in table if c not in TABLE2_LEAD]].sort_values(TABLE2_LEAD, kind="stable")
+    table = table[TABLE2_LEAD + [c for c in table if c not in TABLE2_LEAD]].sort_values(TABLE2_LEAD[:3], kind="stable")
     files.write_csv(table, out_csv)
     files.write_text(out_markdown, table2_markdown(table))
+    log.info("Table 2: %s", status_counts_line(table, "rows"))
 
 
 def table2_markdown(table: pd.DataFrame) -> str:
@@ -359,7 +468,7 @@ def table2_markdown(table: pd.DataFrame) -> str:
         f"k {paper['k_est']} (reference about {paper['k_true']}).", "",
     ]
     columns = [
-        ("set_id", "set", None), ("n_images_registered", "images", None), ("reproj_rms_px", "reproj px", 2),
+        ("set_id", "set", None), ("status", "status", None), ("n_images_registered", "images", None), ("reproj_rms_px", "reproj px", 2),
         ("cam_pos_rms_m", "cam-prior m", 2), ("prior_overfit", "overfit", None), ("registration_ok", "reg ok", None),
         ("registration_rms_rel", "reg RMS rel", 4), ("accuracy_rel_median", "acc rel", 4), ("completeness", "compl.", 3),
         ("n_points", "points", None), ("n_points_refined", "points ref.", None), ("light_dir_err_deg", "light err", 3),
@@ -369,15 +478,16 @@ def table2_markdown(table: pd.DataFrame) -> str:
         ("k_err_refined", "k err ref.", 4), ("normal_err_deg_median", "normal err", 1), ("normal_err_deg_median_refined", "normal err ref.", 1),
     ]
     for (priors, method), group in table.groupby(["priors", "method"], sort=True):
-        lines += [f"## priors {priors}, {method}", "", "| " + " | ".join(title for _, title, _ in columns) + " |", "|" + "---|" * len(columns)]
+        lines += [f"## priors {priors}, {method}", "", status_counts_line(group, keys=("set_id",)), ""]
+        lines += ["| " + " | ".join(title for _, title, _ in columns) + " |", "|" + "---|" * len(columns)]
         for _, row in group.iterrows():
             cells = []
             for key, _, digits in columns:
                 value = row.get(key)
-                cells.append("" if value is None or (isinstance(value, float) and np.isnan(value)) else (str(value) if digits is None else f"{value:.{digits}f}"))
+                cells.append(metrics.text_cell(value) if digits is None or pd.isna(value) else f"{value:.{digits}f}")
             lines.append("| " + " | ".join(cells) + " |")
         worst = {key: group[key].abs().max() for key in ("light_dir_err_deg_refined", "albedo_err_refined", "k_err_refined") if key in group}
-        lines += ["", "Worst after refinement: " + ", ".join(f"{k} {v:.3g}" for k, v in worst.items()) + f"; registered {int(group.registration_ok.sum())}/{len(group)}", ""]
+        lines += ["", "Worst after refinement: " + ", ".join(f"{k} {v:.3g}" for k, v in worst.items()) + f"; registered {int(group.registration_ok.fillna(False).astype(bool).sum())}/{len(group)}", ""]
     lines += error_decomposition_markdown(table)
     return "\n".join(lines)
 
@@ -389,7 +499,7 @@ def error_decomposition_markdown(table: pd.DataFrame) -> list[str]:
     lines = ["## Where the error comes from", "",
              "Median over the registered sets of the absolute errors, with the truth put in one part at a time "
              "(same images, same estimator; `_true_*` columns of table2.csv).", ""]
-    for (priors, method), group in table[table.registration_ok.fillna(False).astype(bool)].groupby(["priors", "method"], sort=True):
+    for (priors, method), group in table[table.registration_ok.fillna(False).astype(bool) & (table.status == OK)].groupby(["priors", "method"], sort=True):
         lines += [f"### priors {priors}, {method}", "", "| | light err (deg) | albedo err | k err |", "|---|---|---|---|"]
         for suffix, title in metrics.TABLE2_STAGES:
             cells = [f"{group[f'{key}{suffix}'].abs().median():.4g}" for key in ("light_dir_err_deg", "albedo_err", "k_err")]

@@ -21,6 +21,7 @@ from asteroid_photometry.config import validate_config, ConfigError
 from asteroid_photometry.experiment import image_sets, named_entry
 from asteroid_photometry.shape import get_shape_model_spec
 from asteroid_photometry.mismatch import model_sets
+from asteroid_photometry.footprint import estimate_footprint, footprint_warnings
 
 try:
     config.update(validate_config(config))
@@ -63,6 +64,17 @@ MODEL_SETS = model_sets(config["model_mismatch"], config["light_angles_deg"]) if
 LIGHT_ANGLE_OF_TAG = {s.light_tag: s.light_angle_deg for s in SETS.values()}
 LIGHT_ANGLE_OF_TAG.update({f"light{angle:g}": angle for _, angle in MODEL_SETS.values()})
 ESTIMATORS = config["estimators"]
+
+# The disk and memory the configured run needs, against what this machine
+# has: in the log of every run, dry runs included (make footprint).
+FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS))
+logger.info(FOOTPRINT.summary())
+try:
+    PARALLEL_JOBS = int(workflow.cores)
+except (WorkflowError, TypeError, ValueError):
+    PARALLEL_JOBS = 1
+for _warning in footprint_warnings(FOOTPRINT, Path.cwd(), PARALLEL_JOBS):
+    logger.warning(f"warning: {_warning}")
 # Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.
 TABLE2_PLOT_METHOD = "koizumi_lm" if "koizumi_lm" in ESTIMATORS else ESTIMATORS[0]
 TABLE2_PLOT_SET = BASE_SETS[-1]

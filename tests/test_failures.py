@@ -1,0 +1,317 @@
+"""Failure is data, bad input is named: the stages on small rendered sets with a fault put in.
+
+A failure of the data (blank images, too few images to reconstruct) becomes
+the set's status, passed on by the later stages and shown as a table row
+with its reason; a malformed input file stops the stage at once with an
+error naming the file and what was expected. The workflow-level run with
+faults injected between the stages is in test_workflow.py.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from asteroid_photometry import cameras, estimate, failures, metrics
+from asteroid_photometry.experiment import ImageSet
+from asteroid_photometry.failures import BadInput, DataFailure
+from asteroid_photometry.stages import fit_set, read_rendered_images, write_linear_exr, write_observations, write_table1
+
+SIZE = 16
+PAPER_CSV = Path(__file__).resolve().parents[1] / "workflow" / "resources" / "paper_table1.csv"
+
+
+def write_set(render_dir, images, poses, intrinsics=None):
+    """A rendered set as the render stage writes it: EXR images and frames.json."""
+    render_dir.mkdir(parents=True, exist_ok=True)
+    intrinsics = intrinsics or cameras.Intrinsics(SIZE, SIZE, 40.0, SIZE / 2, SIZE / 2)
+    entries = []
+    for index, (image, pose) in enumerate(zip(images, poses)):
+        name = f"image_{index:03d}.exr"
+        write_linear_exr(render_dir / name, image)
+        entries.append({"index": index, "file": name, "body_to_camera": np.asarray(pose).tolist()})
+    frames = {
+        "albedo": 0.6, "minnaert_k": 0.8, "light_dir_cam": cameras.light_dir_cam(10.0).tolist(),
+        "intrinsics": intrinsics.to_dict(), "images": entries,
+    }
+    (render_dir / "frames.json").write_text(json.dumps(frames))
+    return frames
+
+
+@pytest.fixture
+def small_set(tmp_path):
+    rng = np.random.default_rng(0)
+    poses = cameras.body_to_camera_poses(3, 5000.0)
+    write_set(tmp_path / "set", [rng.uniform(0.0, 0.5, (SIZE, SIZE)) for _ in poses], poses)
+    return tmp_path / "set"
+
+
+def edit_frames(render_dir, change):
+    frames = json.loads((render_dir / "frames.json").read_text())
+    change(frames)
+    (render_dir / "frames.json").write_text(json.dumps(frames))
+
+
+# ---------------------------------------------------------------- bad input, named
+
+
+def test_a_sound_set_reads(small_set):
+    frames, images = read_rendered_images(small_set)
+    assert len(images) == 3 and images[0].shape == (SIZE, SIZE) and images[0].max() > 0
+
+
+@pytest.mark.parametrize("image, message", [
+    (np.full((SIZE, SIZE + 4), 0.3), r"image_001\.exr: the image is 20 x 16 px, but the intrinsics in frames\.json say 16 x 16"),
+    (np.where(np.eye(SIZE) > 0, np.nan, 0.3), r"image_001\.exr: 16 NaN or infinite pixels; expected finite linear radiance"),
+    (np.where(np.eye(SIZE) > 0, -0.2, 0.3), r"image_001\.exr: 16 negative pixels \(lowest -0\.2\); expected linear radiance >= 0"),
+])
+def test_a_bad_image_is_named_with_what_was_expected(small_set, image, message):
+    write_linear_exr(small_set / "image_001.exr", image)
+    with pytest.raises(BadInput, match=message):
+        read_rendered_images(small_set)
+
+
+def test_frames_missing_an_image_is_named(small_set):
+    edit_frames(small_set, lambda frames: frames["images"].pop(1))
+    with pytest.raises(BadInput, match=r"frames\.json: lists 2 images but not image_001\.exr found beside it"):
+        read_rendered_images(small_set)
+    (small_set / "image_001.exr").unlink()
+    read_rendered_images(small_set)  # two images, consistently: a smaller set, not bad input
+    edit_frames(small_set, lambda frames: frames["images"].append({"index": 5, "file": "image_005.exr", "body_to_camera": np.eye(4).tolist()}))
+    with pytest.raises(BadInput, match=r"image entry 2 \(image_005\.exr\): the image file .*image_005\.exr is missing"):
+        read_rendered_images(small_set)
+
+
+@pytest.mark.parametrize("pose, message", [
+    (np.eye(4)[:3].tolist(), "must be a finite 4x4 matrix"),
+    ("identity", "must be a finite 4x4 matrix"),
+    (np.diag([1.0, 1.0, np.nan, 1.0]).tolist(), "must be a finite 4x4 matrix"),
+    (np.diag([2.0, 1.0, 1.0, 1.0]).tolist(), "must be a rigid transform"),
+    (np.diag([1.0, 1.0, -1.0, 1.0]).tolist(), "must be a rigid transform"),
+])
+def test_a_malformed_pose_is_named(small_set, pose, message):
+    def change(frames):
+        frames["images"][2]["body_to_camera"] = pose
+
+    edit_frames(small_set, change)
+    with pytest.raises(BadInput, match=rf"frames\.json: image entry 2 \(image_002\.exr\): 'body_to_camera' {message}"):
+        read_rendered_images(small_set)
+
+
+def test_frames_without_intrinsics_or_images_are_named(small_set):
+    edit_frames(small_set, lambda frames: frames["intrinsics"].pop("width"))
+    with pytest.raises(BadInput, match=r"frames\.json: expected 'intrinsics' with a positive integer 'width' and 'height'"):
+        read_rendered_images(small_set)
+    edit_frames(small_set, lambda frames: frames.update(intrinsics={"width": SIZE, "height": SIZE}, images=[]))
+    with pytest.raises(BadInput, match=r"frames\.json: expected a non-empty list 'images'"):
+        read_rendered_images(small_set)
+
+
+def test_bad_input_stops_the_stage_before_any_work(small_set, tmp_path):
+    """Reconstruction is the most expensive per-set stage: the bad image is named before pycolmap starts."""
+    pytest.importorskip("pycolmap")
+    from asteroid_photometry.table2 import reconstruct_stage
+
+    write_linear_exr(small_set / "image_002.exr", np.full((SIZE, SIZE), np.nan))
+    with pytest.raises(BadInput, match="image_002.exr"):
+        reconstruct_stage(small_set, tmp_path / "model", True, RECONSTRUCTION, 1)
+    assert not (tmp_path / "model").exists()
+
+
+# ---------------------------------------------------------------- failure is data: Table 1
+
+
+def synthetic_observations_npz(path, seed=0):
+    light = cameras.light_dir_cam(10.0)
+    obs = estimate.synthetic_observations(300, 12, light, 0.6, 0.8, np.random.default_rng(seed))
+    np.savez_compressed(
+        path, point_index=obs.point_index, normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness,
+        n_points=obs.n_points, light_dir_cam_true=light, albedo_true=np.full(obs.n_points, 0.6), minnaert_k_true=np.full(obs.n_points, 0.8),
+    )
+    return path
+
+
+def test_a_blank_set_is_a_table1_row_with_its_reason(small_set, tmp_path):
+    for path in small_set.glob("image_*.exr"):
+        write_linear_exr(path, np.zeros((SIZE, SIZE)))
+    with pytest.raises(DataFailure, match="3 of 3 images are blank"):
+        read_rendered_images(small_set)
+    # The observe stage records it (the geometry file is never read), the fit passes it on.
+    write_observations(tmp_path / "never_read.npz", small_set, tmp_path / "blank_obs.npz")
+    blank_set = ImageSet(10.0, 0.5, 0.8)
+    fit_set(tmp_path / "blank_obs.npz", blank_set, "koizumi_lm", tmp_path / "blank.npz", tmp_path / "blank.json", blank_set.set_id)
+    row = json.loads((tmp_path / "blank.json").read_text())
+    assert row["status"] == "failed: observe: 3 of 3 images are blank (no pixel above 0: image_000.exr, image_001.exr, image_002.exr)"
+    assert row["albedo_true"] == 0.5 and "albedo_est" not in row
+    with np.load(tmp_path / "blank.npz") as data:
+        assert str(data["status"]) == "failed" and "albedo" not in data.files
+
+    # A sound set beside it: its row is the same with or without the failed one.
+    sound_set = ImageSet(10.0, 0.6, 0.8)
+    fit_set(synthetic_observations_npz(tmp_path / "obs.npz"), sound_set, "koizumi_lm", tmp_path / "ok.npz", tmp_path / "ok.json", sound_set.set_id)
+    write_table1([tmp_path / "ok.json"], PAPER_CSV, tmp_path / "alone.csv", tmp_path / "alone.md")
+    write_table1([tmp_path / "ok.json", tmp_path / "blank.json"], PAPER_CSV, tmp_path / "both.csv", tmp_path / "both.md")
+    alone, both = (pd.read_csv(tmp_path / name).set_index("set_id") for name in ("alone.csv", "both.csv"))
+    assert list(both.index) == [blank_set.set_id, sound_set.set_id]  # Table 1's order: light, k, albedo
+    assert list(both.status) == [row["status"], "ok"]
+    pd.testing.assert_series_equal(both.loc[sound_set.set_id].drop("fit_seconds"), alone.loc[sound_set.set_id].drop("fit_seconds"), check_dtype=False)
+    assert both.loc[blank_set.set_id, ["light_deg_est", "albedo_err", "k_err", "n_points"]].isna().all()
+    markdown = (tmp_path / "both.md").read_text()
+    assert "1 of 2 sets ok; 1 failed: light10_albedo0.5_k0.8 (observe: 3 of 3 images are blank" in markdown
+
+
+def test_too_few_observations_is_a_failure_of_the_data_not_a_crash(tmp_path):
+    light = cameras.light_dir_cam(10.0)
+    obs = estimate.synthetic_observations(2, 12, light, 0.6, 0.8, np.random.default_rng(0))
+    np.savez_compressed(
+        tmp_path / "obs.npz", point_index=obs.point_index, normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness,
+        n_points=obs.n_points, light_dir_cam_true=light, albedo_true=np.full(2, 0.6), minnaert_k_true=np.full(2, 0.8),
+    )
+    image_set = ImageSet(10.0, 0.6, 0.8)
+    fit_set(tmp_path / "obs.npz", image_set, "varpro", tmp_path / "fit.npz", tmp_path / "fit.json", image_set.set_id)
+    status = json.loads((tmp_path / "fit.json").read_text())["status"]
+    assert status.startswith("failed: fit: too few observations to fit: ") and "2 points seen at least 3 times" in status
+
+
+def test_a_bug_still_fails_loudly(tmp_path):
+    """Only DataFailure is recorded: anything else (here an unknown estimator) propagates."""
+    image_set = ImageSet(10.0, 0.6, 0.8)
+    with pytest.raises(ValueError, match="unknown estimator"):
+        fit_set(synthetic_observations_npz(tmp_path / "obs.npz"), image_set, "no_such_method", tmp_path / "f.npz", tmp_path / "f.json", image_set.set_id)
+    assert not (tmp_path / "f.json").exists()
+
+
+def test_sweep_and_monte_carlo_tables_count_failed_sets():
+    rows = pd.DataFrame([
+        {"set_id": "a", "method": "varpro", "status": "ok", "light_dir_err_deg": 0.1},
+        {"set_id": "b", "method": "varpro", "status": "failed: observe: 36 of 36 images are blank"},
+    ])
+    markdown = metrics.sweep_markdown(rows, "noise")
+    assert "1 of 2 sets ok; 1 failed: b (observe: 36 of 36 images are blank)." in markdown
+    assert "| b | failed: observe: 36 of 36 images are blank |" in markdown
+    draw = {"noise_level": "x", "light_std_deg_bound": 1.0, "light_dir_err_deg": 0.5, "light_err_sigma": 0.5, "light_mahalanobis": 0.5, "efficiency_albedo": 1.0, "efficiency_k": 1.0}
+    draws = pd.DataFrame([
+        {"set_id": "a", "draw": 1, "status": "ok", **draw}, {"set_id": "a", "draw": 2, "status": "ok", **draw},
+        {"set_id": "b", "draw": 1, "noise_level": "x", "status": "failed: noise_monte_carlo: 36 of 36 images are blank"},
+    ])
+    summary = metrics.monte_carlo_summary(draws).set_index("set_id")
+    assert summary.loc["a", "status"] == "ok" and summary.loc["a", "draws"] == 2
+    assert summary.loc["b", "status"].startswith("failed") and summary.loc["b", "draws"] == 0
+    assert summary.loc["all", "draws"] == 2
+    assert "1 of 2 sets ok; 1 failed: b (noise_monte_carlo" in metrics.monte_carlo_markdown(summary.reset_index())
+
+
+def test_status_cells_and_counts():
+    assert failures.table_status() == "ok" and failures.table_status("fit: x") == "failed: fit: x"
+    assert failures.passed_on("reconstruct: x").reason_in("register_cloud") == "reconstruct: x"
+    assert DataFailure("x").reason_in("register_cloud") == "register_cloud: x"
+    table = pd.DataFrame({"set_id": ["a", "b"], "priors": ["on", "on"], "status": ["ok", "ok"]})
+    assert failures.status_counts_line(table) == "2 of 2 sets ok."
+
+
+# ---------------------------------------------------------------- failure is data: Table 2
+
+
+@pytest.fixture(scope="module")
+def four_image_set(tmp_path_factory):
+    """A textured sphere seen every 90 degrees: no two images share a surface patch."""
+    pytest.importorskip("pycolmap")
+    from test_reconstruct import textured_sphere_images
+
+    images, intrinsics, poses = textured_sphere_images(n_images=4, size=128)
+    render_dir = tmp_path_factory.mktemp("four") / "set"
+    write_set(render_dir, images, poses, intrinsics)
+    return render_dir
+
+
+RECONSTRUCTION = {
+    "intrinsics": "fixed", "camera_position_sigma_m": 0.01, "tie_point_sigma_px": 1.0, "prior_seed": 0,
+    "min_pose_inliers": 15, "min_pose_inlier_ratio": 0.1, "min_track": 3, "min_observations_per_point": 6, "min_cos_emission": 0.2,
+}
+
+
+def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_image_set, tmp_path):
+    from asteroid_photometry.table2 import fit_cloud_stage, reconstruct_stage, refine_stage, register_stage, write_table2
+
+    reconstruct_stage(four_image_set, tmp_path / "model", True, RECONSTRUCTION, 1)
+    status = json.loads((tmp_path / "model" / "status.json").read_text())
+    assert status["status"] == "failed" and status["reason"].startswith("reconstruct: pycolmap registered ")
+    assert "of 4 images in its largest model (at least 3 needed" in status["reason"]
+    # The later stages pass it on without reading anything else (the shape model here does not exist).
+    register_stage(tmp_path / "model", tmp_path / "no_shape.npz", RECONSTRUCTION, tmp_path / "reg.npz", tmp_path / "reg.json")
+    assert json.loads((tmp_path / "reg.json").read_text()) == {"status": "failed", "reason": status["reason"], "registration_ok": False}
+    refine_stage(tmp_path / "reg.npz", tmp_path / "model", four_image_set, RECONSTRUCTION, tmp_path / "refined.npz")
+    fit_cloud_stage(
+        tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", four_image_set, tmp_path / "no_shape.npz", tmp_path / "refined.npz",
+        "koizumi_lm", "light10_albedo0.6_k0.8", "on", RECONSTRUCTION, tmp_path / "row.json", tmp_path / "errors.npz",
+    )
+    row = json.loads((tmp_path / "row.json").read_text())
+    assert row == {"set_id": "light10_albedo0.6_k0.8", "priors": "on", "method": "koizumi_lm", "status": f"failed: {status['reason']}", "registration_ok": False}
+    write_table2([tmp_path / "row.json"], tmp_path / "table2.csv", tmp_path / "table2.md")
+    assert pd.read_csv(tmp_path / "table2.csv").status.iloc[0] == row["status"]
+    assert "0 of 1 sets ok; 1 failed: light10_albedo0.6_k0.8 (reconstruct: pycolmap registered" in (tmp_path / "table2.md").read_text()
+
+
+# ---------------------------------------------------------------- disk and memory, before the run
+
+
+def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_short(tmp_path):
+    import yaml
+
+    from asteroid_photometry.config import validate_config
+    from asteroid_photometry.experiment import image_sets
+    from asteroid_photometry.footprint import estimate_footprint, footprint_warnings
+
+    config = validate_config(yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text()))
+    sets = image_sets(config)
+    full = estimate_footprint(config, sets, 2, 3)
+    # The default run: 80 sets; 32 clean sets of 7.3 MB and 48 noisy ones of 16.4 MB are 1.0 GB of images alone.
+    assert full.n_sets == 80 and 1.0e9 < full.total_disk_bytes < 2.0e9
+    assert full.largest_job[0] == "refine_cloud" and "estimated footprint of this run: 1.4 GB" in full.summary()
+    large = estimate_footprint(dict(config, image_size=1024), sets, 2, 3)
+    assert large.disk_bytes["rendered images"] == pytest.approx(4 * full.disk_bytes["rendered images"])
+    assert estimate_footprint(config, sets, 0, 3).disk_bytes["reconstructions"] == 0
+    assert footprint_warnings(full, tmp_path, parallel_jobs=2, memory_mb=64_000) == []
+    short = footprint_warnings(full, tmp_path, parallel_jobs=1, memory_mb=500)
+    assert len(short) == 1 and "the largest job (refine_cloud) needs about 786 MB of memory but this machine has 500 MB" in short[0]
+    assert "16 jobs at once may need about 12576 MB" in footprint_warnings(full, tmp_path, parallel_jobs=16, memory_mb=8000)[0]
+    huge = estimate_footprint(dict(config, image_size=8192, n_images=360), sets, 2, 3)
+    disk = footprint_warnings(huge, tmp_path, memory_mb=1e9)
+    assert len(disk) == 1 and f"of disk but {tmp_path} has" in disk[0] and "image_size" in disk[0]
+
+
+@pytest.mark.parametrize("fractions, reason", [
+    ([0.1, 0.2, 0.05, 0.3], "reconstruct: the model is depth-reversed (seen from inside) on all 4 mapper seeds: outward fractions 0.10, 0.20, 0.05, 0.30"),
+    ([0.1, 0.9], None),
+])
+def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set, tmp_path, monkeypatch, fractions, reason):
+    """The mapper and the outward test stubbed (a real depth-reversed model takes a full set): the reseeding loop and its record."""
+    pytest.importorskip("pycolmap")
+    from test_reconstruct import synthetic_model, synthetic_scene
+
+    from asteroid_photometry import reconstruct as rc
+    from asteroid_photometry import table2
+
+    poses, intrinsics, points = synthetic_scene()
+    seeds = []
+
+    def mapper(images, intrinsics_, work_dir, **kwargs):
+        seeds.append(kwargs["seed"])
+        model = synthetic_model(poses, intrinsics, points)
+        return rc.SparseReconstruction(model, rc.model_report(model, poses))
+
+    monkeypatch.setattr(table2.reconstruct, "reconstruct_images", mapper)
+    monkeypatch.setattr(table2, "outward_fraction", lambda result, min_track: fractions[len(seeds) - 1])
+    table2.reconstruct_stage(small_set, tmp_path / "model", False, RECONSTRUCTION, 1)
+    status = json.loads((tmp_path / "model" / "status.json").read_text())
+    assert seeds == list(range(len(fractions)))
+    if reason is None:
+        assert status == {"status": "ok"}
+        report = json.loads((tmp_path / "model" / "report.json").read_text())
+        assert [attempt["outward_fraction"] for attempt in report["settings"]["mapper_attempts"]] == fractions
+    else:
+        assert status == {"status": "failed", "reason": reason} and not (tmp_path / "model" / "report.json").exists()
+        with pytest.raises(DataFailure, match="depth-reversed"):
+            table2.read_reconstruction(tmp_path / "model")
