@@ -68,14 +68,15 @@ def _size(n_bytes: float) -> str:
     return f"{n_bytes / 1e9:.1f} GB" if n_bytes >= 1e9 else f"{n_bytes / 1e6:.0f} MB"
 
 
-def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estimators: int) -> Footprint:
-    """The disk and memory of the run that ``config`` asks for (``sets``: ``experiment.image_sets(config)``)."""
+def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estimators: int, n_model_sets: int = 0) -> Footprint:
+    """The disk and memory of the run that ``config`` asks for (``sets``: ``experiment.image_sets(config)``;
+    ``n_model_sets``: the model-mismatch experiment's rendered sets, noise-free images as the others)."""
     pixels = config["n_images"] * config["image_size"] ** 2
     noisy = sum(1 for s in sets.values() if s.noise_level)
     base = sum(1 for s in sets.values() if s.is_base)
     lights = len({s.light_tag for s in sets.values()})
     per_set = {
-        "rendered images": BYTES_PER_PIXEL["render"] * (len(sets) - noisy) + BYTES_PER_PIXEL["render_noisy"] * noisy,
+        "rendered images": BYTES_PER_PIXEL["render"] * (len(sets) - noisy + n_model_sets) + BYTES_PER_PIXEL["render_noisy"] * noisy,
         "observations and fits": BYTES_PER_PIXEL["observations"] * len(sets) + BYTES_PER_PIXEL["fits"] * len(sets) * n_estimators
         + BYTES_PER_PIXEL["observation_geometry"] * lights,
         "reconstructions": BYTES_PER_PIXEL["reconstruction"] * base * n_prior_settings,
@@ -86,7 +87,7 @@ def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estima
     scale = pixels / MEASURED_PIXELS
     jobs = PEAK_MB_MEASURED if n_prior_settings else {job: mb for job, mb in PEAK_MB_MEASURED.items() if job not in ("refine_cloud", "fit_cloud", "reconstruct", "register_cloud")}
     peak = {job: BASE_MB + (mb - BASE_MB) * scale for job, mb in jobs.items()}
-    return Footprint(disk, peak, len(sets))
+    return Footprint(disk, peak, len(sets) + n_model_sets)
 
 
 def machine_memory_mb() -> float | None:

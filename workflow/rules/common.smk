@@ -67,7 +67,7 @@ ESTIMATORS = config["estimators"]
 
 # The disk and memory the configured run needs, against what this machine
 # has: in the log of every run, dry runs included (make footprint).
-FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS))
+FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS), n_model_sets=len(MODEL_SETS))
 logger.info(FOOTPRINT.summary())
 try:
     PARALLEL_JOBS = int(workflow.cores)
