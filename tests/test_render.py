@@ -5,6 +5,7 @@ import pytest
 from scipy.ndimage import binary_dilation
 
 from asteroid_photometry import cameras, observe, render
+from synthetic_helpers import sphere_image_closed_form
 
 
 @pytest.fixture(scope="module")
@@ -13,26 +14,12 @@ def variant():
 
 
 def closed_form_sphere(radius_m, distance_m, image_size, fov_deg, albedo, minnaert_k, light, supersample=6):
-    """Pixel averages of the Minnaert sphere image, from ray-sphere intersections on a sub-pixel grid."""
-    focal = 0.5 * image_size / np.tan(np.radians(fov_deg) / 2)
-    intrinsics = cameras.Intrinsics(image_size, image_size, focal, image_size / 2, image_size / 2)
-    offsets = (np.arange(supersample) + 0.5) / supersample
-    pixel = np.arange(image_size)
-    u = (pixel[None, :, None, None] + offsets[None, None, None, :]) * np.ones((image_size, 1, supersample, 1))
-    v = (pixel[:, None, None, None] + offsets[None, None, :, None]) * np.ones((1, image_size, 1, supersample))
-    d = cameras.pixel_rays_cam(intrinsics, u, v)
-    centre = np.array([0.0, 0.0, distance_m])
-    along = d @ centre
-    disc = along**2 - (centre @ centre - radius_m**2)
-    hit = disc > 0
-    t = along - np.sqrt(np.where(hit, disc, 0.0))
-    normal = (d * t[..., None] - centre) / radius_m
-    cos_i = normal @ light
-    cos_o = -(normal * d).sum(-1)
-    lit = hit & (cos_i > 0) & (cos_o > 0)
-    b = np.where(lit, albedo * np.clip(cos_i, 1e-12, None) ** minnaert_k * np.clip(cos_o, 1e-12, None) ** (minnaert_k - 1), 0.0)
-    interior = (lit & (cos_i > 0.2) & (cos_o > 0.2)).all(axis=(2, 3))
-    return b.mean(axis=(2, 3)), b.std(axis=(2, 3)), interior
+    """Pixel averages of the Minnaert sphere image (``synthetic_helpers.sphere_image_closed_form``)."""
+
+    def minnaert(cos_i, cos_o, cos_g):
+        return albedo * np.clip(cos_i, 1e-12, None) ** minnaert_k * np.clip(cos_o, 1e-12, None) ** (minnaert_k - 1)
+
+    return sphere_image_closed_form(minnaert, light, radius_m, distance_m, image_size, fov_deg, supersample)
 
 
 @pytest.mark.parametrize("light_deg, albedo, minnaert_k", [(0.0, 0.5, 0.7), (10.0, 0.7, 1.0), (30.0, 0.6, 0.85)])

@@ -5,6 +5,7 @@ import pytest
 from scipy.ndimage import binary_dilation
 
 from asteroid_photometry import cameras, photometry, render, render_models
+from synthetic_helpers import sphere_image_closed_form
 from test_photometry import PARAMS
 
 SPHERE = dict(radius_m=100.0, distance_m=5000.0, image_size=48, fov_deg=2.6)
@@ -17,25 +18,11 @@ def variant():
 
 
 def closed_form_sphere(model, params, light, radius_m, distance_m, image_size, fov_deg, supersample=6):
-    """Pixel means and spreads of the law's sphere image, from ray-sphere intersections on a sub-pixel grid."""
-    focal = 0.5 * image_size / np.tan(np.radians(fov_deg) / 2)
-    intrinsics = cameras.Intrinsics(image_size, image_size, focal, image_size / 2, image_size / 2)
-    offsets = (np.arange(supersample) + 0.5) / supersample
-    pixel = np.arange(image_size)
-    u = (pixel[None, :, None, None] + offsets[None, None, None, :]) * np.ones((image_size, 1, supersample, 1))
-    v = (pixel[:, None, None, None] + offsets[None, None, :, None]) * np.ones((1, image_size, 1, supersample))
-    d = cameras.pixel_rays_cam(intrinsics, u, v)
-    centre = np.array([0.0, 0.0, distance_m])
-    along = d @ centre
-    disc = along**2 - (centre @ centre - radius_m**2)
-    hit = disc > 0
-    t = along - np.sqrt(np.where(hit, disc, 0.0))
-    normal = (d * t[..., None] - centre) / radius_m
-    cos_i, cos_o, cos_g = photometry.geometry_cosines(normal, light, -d)
-    lit = hit & (cos_i > 0) & (cos_o > 0)
-    b = np.where(lit, photometry.get_model(model).radiance_factor(params, cos_i, cos_o, cos_g), 0.0)
-    interior = (lit & (cos_i > 0.2) & (cos_o > 0.2)).all(axis=(2, 3))
-    return b.mean(axis=(2, 3)), b.std(axis=(2, 3)), interior
+    """Pixel means and spreads of the law's sphere image (``synthetic_helpers.sphere_image_closed_form``)."""
+    law = photometry.get_model(model)
+    return sphere_image_closed_form(
+        lambda cos_i, cos_o, cos_g: law.radiance_factor(params, cos_i, cos_o, cos_g), light, radius_m, distance_m, image_size, fov_deg, supersample
+    )
 
 
 @pytest.mark.parametrize("model", list(photometry.MODELS))

@@ -102,6 +102,45 @@ def choose_variant(requested: str = "auto") -> str:
     raise RuntimeError("no Mitsuba variant works on this machine")
 
 
+def one_sided_diffuse_bsdf():
+    """A base class for the current Mitsuba variant: a one-sided reflectance, sampled on the cosine hemisphere.
+
+    A subclass defines ``_value_times_cos(si, wo, active)``, ``f_r cos_i`` with
+    ``si.wi`` towards the camera and ``wo`` towards the light; this class gives
+    Mitsuba its ``sample``, ``eval`` and ``pdf``. Must be called after
+    ``mitsuba.set_variant``.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    class OneSidedDiffuseBSDF(mi.BSDF):
+        def sample(self, ctx, si, sample1, sample2, active):
+            bs = mi.BSDFSample3f()
+            bs.wo = mi.warp.square_to_cosine_hemisphere(sample2)
+            bs.pdf = mi.warp.square_to_cosine_hemisphere_pdf(bs.wo)
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DiffuseReflection)
+            bs.sampled_component = mi.UInt32(0)
+            value = self._value_times_cos(si, bs.wo, active)
+            weight = dr.select(bs.pdf > 0.0, value / bs.pdf, 0.0)
+            return bs, mi.Color3f(weight)
+
+        def eval(self, ctx, si, wo, active):
+            return mi.Color3f(self._value_times_cos(si, wo, active))
+
+        def pdf(self, ctx, si, wo, active):
+            front = (mi.Frame3f.cos_theta(si.wi) > 0.0) & (mi.Frame3f.cos_theta(wo) > 0.0)
+            return dr.select(front, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
+
+        def eval_pdf(self, ctx, si, wo, active):
+            return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+
+        def traverse(self, callback):
+            pass
+
+    return OneSidedDiffuseBSDF
+
+
 def register_minnaert_plugin():
     """Define the Minnaert BSDF for the current Mitsuba variant and register it as ``minnaert``.
 
@@ -110,7 +149,7 @@ def register_minnaert_plugin():
     import drjit as dr
     import mitsuba as mi
 
-    class MinnaertBSDF(mi.BSDF):
+    class MinnaertBSDF(one_sided_diffuse_bsdf()):
         """``f_r = albedo / pi * (cos_i cos_o)^(k - 1)``, one-sided, reciprocal."""
 
         def __init__(self, props):
@@ -136,30 +175,6 @@ def register_minnaert_plugin():
                 albedo, minnaert_k = self.albedo, self.minnaert_k
             value = albedo * dr.inv_pi * dr.power(cos_i * cos_o, minnaert_k - 1.0) * cos_i
             return dr.select(valid, value, 0.0)
-
-        def sample(self, ctx, si, sample1, sample2, active):
-            bs = mi.BSDFSample3f()
-            bs.wo = mi.warp.square_to_cosine_hemisphere(sample2)
-            bs.pdf = mi.warp.square_to_cosine_hemisphere_pdf(bs.wo)
-            bs.eta = 1.0
-            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DiffuseReflection)
-            bs.sampled_component = mi.UInt32(0)
-            value = self._value_times_cos(si, bs.wo, active)
-            weight = dr.select(bs.pdf > 0.0, value / bs.pdf, 0.0)
-            return bs, mi.Color3f(weight)
-
-        def eval(self, ctx, si, wo, active):
-            return mi.Color3f(self._value_times_cos(si, wo, active))
-
-        def pdf(self, ctx, si, wo, active):
-            front = (mi.Frame3f.cos_theta(si.wi) > 0.0) & (mi.Frame3f.cos_theta(wo) > 0.0)
-            return dr.select(front, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
-
-        def eval_pdf(self, ctx, si, wo, active):
-            return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
-
-        def traverse(self, callback):
-            pass
 
         def to_string(self):
             if self.per_facet:

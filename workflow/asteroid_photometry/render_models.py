@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import photometry
+from . import photometry, render
 
 PLUGIN_NAME = "photometric"
 
@@ -41,7 +41,7 @@ def register_photometric_plugin():
 
     ops = photometry.drjit_ops()
 
-    class PhotometricBSDF(mi.BSDF):
+    class PhotometricBSDF(render.one_sided_diffuse_bsdf()):
         """``f_r = b(cos_i, cos_o, cos_g) / (pi cos_i)`` of one law of ``photometry``; one-sided."""
 
         def __init__(self, props):
@@ -70,30 +70,6 @@ def register_photometric_plugin():
             valid = active & (cos_o > 0.0) & (cos_i > 0.0)
             value = self.law.radiance_factor(self.params, cos_i, cos_o, cos_g, ops, one_minus_cos_g) * dr.inv_pi
             return dr.select(valid, value, 0.0)
-
-        def sample(self, ctx, si, sample1, sample2, active):
-            bs = mi.BSDFSample3f()
-            bs.wo = mi.warp.square_to_cosine_hemisphere(sample2)
-            bs.pdf = mi.warp.square_to_cosine_hemisphere_pdf(bs.wo)
-            bs.eta = 1.0
-            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DiffuseReflection)
-            bs.sampled_component = mi.UInt32(0)
-            value = self._value_times_cos(si, bs.wo, active)
-            weight = dr.select(bs.pdf > 0.0, value / bs.pdf, 0.0)
-            return bs, mi.Color3f(weight)
-
-        def eval(self, ctx, si, wo, active):
-            return mi.Color3f(self._value_times_cos(si, wo, active))
-
-        def pdf(self, ctx, si, wo, active):
-            front = (mi.Frame3f.cos_theta(si.wi) > 0.0) & (mi.Frame3f.cos_theta(wo) > 0.0)
-            return dr.select(front, mi.warp.square_to_cosine_hemisphere_pdf(wo), 0.0)
-
-        def eval_pdf(self, ctx, si, wo, active):
-            return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
-
-        def traverse(self, callback):
-            pass
 
         def to_string(self):
             return f"PhotometricBSDF[{self.law.name}, {self.params}]"
