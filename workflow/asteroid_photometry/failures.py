@@ -16,9 +16,7 @@ That stops the job at once, naming the file and what was expected.
 
 from __future__ import annotations
 
-import json
 import logging
-from pathlib import Path
 
 import numpy as np
 
