@@ -12,9 +12,11 @@ include: "workflow/rules/shape.smk"
 include: "workflow/rules/render.smk"
 include: "workflow/rules/observe.smk"
 include: "workflow/rules/fit.smk"
-include: "workflow/rules/tabulate.smk"
+include: "workflow/rules/monte_carlo.smk"
 include: "workflow/rules/reconstruct.smk"
+include: "workflow/rules/sensitivity.smk"
 include: "workflow/rules/models.smk"
+include: "workflow/rules/tabulate.smk"
 
 
 # Rules of a few seconds that only prepare the inputs (the shape model, its

@@ -65,17 +65,16 @@ if str(REPO / "workflow") not in sys.path:
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 import scipy.optimize  # noqa: E402
-
-from asteroid_photometry.estimate import (  # noqa: E402
+from asteroid_photometry.estimation import (  # noqa: E402
     Observations,
     angle_between_deg,
     fit_koizumi_lm,
     light_from_tangent,
-    minnaert_brightness,
     synthetic_observations,
 )
-from asteroid_photometry.fisher import cramer_rao_bounds, efficiency  # noqa: E402
-from asteroid_photometry.varpro import fit_varpro  # noqa: E402
+from asteroid_photometry.reflectance.laws import minnaert_brightness
+from asteroid_photometry.estimation.fisher import cramer_rao_bounds, efficiency  # noqa: E402
+from asteroid_photometry.estimation.varpro import fit_varpro  # noqa: E402
 
 LIGHT_ANGLE_DEG, LIGHT_AZIMUTH_DEG = 10.0, 30.0
 ALBEDO_RANGE, K_RANGE = (0.3, 0.8), (0.6, 1.0)

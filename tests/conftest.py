@@ -10,7 +10,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "workflow"))
 # Rule scripts import _workflow_path from their own directory, as under Snakemake.
 sys.path.insert(1, str(Path(__file__).parents[1] / "workflow" / "scripts"))
 
-from asteroid_photometry.shape import SHAPE_MODELS  # noqa: E402
+from asteroid_photometry.world.shape import SHAPE_MODELS  # noqa: E402
 
 # The file names the models have in their source archives.
 ARCHIVE_NAMES = {"gaskell_ver64q": "itokawa_low.obj", "ostro_radar": "25143itokawa.tab"}

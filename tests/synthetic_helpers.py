@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from asteroid_photometry import cameras, photometry
+from asteroid_photometry.reflectance import laws as photometry
+from asteroid_photometry.world import cameras
 
 
 def light_at(angle_deg, azimuth_deg=30.0):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from asteroid_photometry import cameras
+from asteroid_photometry.world import cameras
 
 
 @pytest.fixture

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from asteroid_photometry import cloud
-from asteroid_photometry.cameras import Intrinsics
+from asteroid_photometry.from_images import cloud
+from asteroid_photometry.world.cameras import Intrinsics
 
 pytest.importorskip("open3d")
 

@@ -10,7 +10,7 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "workflow"))
 
-from asteroid_photometry.config import SCHEMA_PATH, ConfigError, load_schema, validate_config  # noqa: E402
+from asteroid_photometry.core.config import SCHEMA_PATH, ConfigError, load_schema, validate_config  # noqa: E402
 
 LAWS = ["lambert", "lommel_seeliger", "lunar_lambert", "minnaert", "hapke"]
 SHIPPED_CONFIGS = [REPO / "config" / "config.yaml", REPO / "config" / "test.yaml"]

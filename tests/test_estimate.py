@@ -1,22 +1,23 @@
-"""Tests of the estimators (asteroid_photometry.estimate) on synthetic observations."""
+"""Tests of the estimators (asteroid_photometry.estimation) on synthetic observations."""
 
 import numpy as np
 import pytest
 
-from asteroid_photometry import estimate, metrics
-from asteroid_photometry.estimate import (
-    KoizumiProblem,
-    Observations,
+from asteroid_photometry import estimation
+from asteroid_photometry.estimation import (
     angle_between_deg,
     fit_iwano_linear,
     fit_koizumi_lm,
     fit_pooled_k,
     initial_albedo_and_k,
+    KoizumiProblem,
     light_angle_deg,
     light_from_tangent,
+    Observations,
     synthetic_observations,
     tangent_from_light,
 )
+from asteroid_photometry.evaluation import metrics
 from synthetic_helpers import light_at, per_point_truth
 
 
@@ -246,7 +247,7 @@ def test_pooled_k_recovers_noiseless_truth_from_a_poor_start():
 
 def test_one_k_holds_the_light_out_of_the_plane_of_the_views():
     # A per-point k takes up, to second order, what a tilt of the light out of the plane of the views
-    # and the Sun does to each point (estimate.fit_pooled_k): under noise the joint fit's light
+    # and the Sun does to each point (estimation.fit_pooled_k): under noise the joint fit's light
     # wanders in elevation several times more than with one k, while its azimuth is as well held.
     light = light_at(10.0, 0.0)
     spin_axis = [0.0, 1.0, 0.0]  # synthetic_observations turns the body about the camera's y axis
@@ -386,5 +387,5 @@ def test_solvers_agree_on_noisy_data():
 
 
 def test_module_exports_exist():
-    for name in estimate.__all__:
-        assert hasattr(estimate, name)
+    for name in estimation.__all__:
+        assert hasattr(estimation, name)

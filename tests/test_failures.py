@@ -14,10 +14,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from asteroid_photometry import cameras, estimate, failures, metrics
-from asteroid_photometry.experiment import ImageSet
-from asteroid_photometry.failures import BadInput, DataFailure
-from asteroid_photometry.stages import fit_set, read_rendered_images, write_linear_exr, write_observations, write_table1
+from asteroid_photometry import estimation
+from asteroid_photometry.core import failures
+from asteroid_photometry.core.failures import BadInput, DataFailure
+from asteroid_photometry.evaluation import metrics
+from asteroid_photometry.experiments.table1 import fit_set, write_observations, write_table1
+from asteroid_photometry.world import cameras
+from asteroid_photometry.world.image_sets import ImageSet
+from asteroid_photometry.world.images import read_rendered_images, write_linear_exr
 
 SIZE = 16
 PAPER_CSV = Path(__file__).resolve().parents[1] / "workflow" / "resources" / "paper_table1.csv"
@@ -112,7 +116,7 @@ def test_frames_without_intrinsics_or_images_are_named(small_set):
 def test_bad_input_stops_the_stage_before_any_work(small_set, tmp_path):
     """Reconstruction is the most expensive per-set stage: the bad image is named before pycolmap starts."""
     pytest.importorskip("pycolmap")
-    from asteroid_photometry.table2 import reconstruct_stage
+    from asteroid_photometry.experiments.table2 import reconstruct_stage
 
     write_linear_exr(small_set / "image_002.exr", np.full((SIZE, SIZE), np.nan))
     with pytest.raises(BadInput, match="image_002.exr"):
@@ -125,7 +129,7 @@ def test_bad_input_stops_the_stage_before_any_work(small_set, tmp_path):
 
 def synthetic_observations_npz(path, seed=0):
     light = cameras.light_dir_cam(10.0)
-    obs = estimate.synthetic_observations(300, 12, light, 0.6, 0.8, np.random.default_rng(seed))
+    obs = estimation.synthetic_observations(300, 12, light, 0.6, 0.8, np.random.default_rng(seed))
     np.savez_compressed(
         path, point_index=obs.point_index, normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness,
         n_points=obs.n_points, light_dir_cam_true=light, albedo_true=np.full(obs.n_points, 0.6), minnaert_k_true=np.full(obs.n_points, 0.8),
@@ -165,7 +169,7 @@ def test_a_blank_set_is_a_table1_row_with_its_reason(small_set, tmp_path):
 
 def test_too_few_observations_is_a_failure_of_the_data_not_a_crash(tmp_path):
     light = cameras.light_dir_cam(10.0)
-    obs = estimate.synthetic_observations(2, 12, light, 0.6, 0.8, np.random.default_rng(0))
+    obs = estimation.synthetic_observations(2, 12, light, 0.6, 0.8, np.random.default_rng(0))
     np.savez_compressed(
         tmp_path / "obs.npz", point_index=obs.point_index, normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness,
         n_points=obs.n_points, light_dir_cam_true=light, albedo_true=np.full(2, 0.6), minnaert_k_true=np.full(2, 0.8),
@@ -234,7 +238,7 @@ RECONSTRUCTION = {
 
 
 def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_image_set, tmp_path):
-    from asteroid_photometry.table2 import fit_cloud_stage, reconstruct_stage, refine_stage, register_stage, write_table2
+    from asteroid_photometry.experiments.table2 import fit_cloud_stage, reconstruct_stage, refine_stage, register_stage, write_table2
 
     reconstruct_stage(four_image_set, tmp_path / "model", True, RECONSTRUCTION, 1)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
@@ -260,10 +264,9 @@ def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_imag
 
 def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_short(tmp_path):
     import yaml
-
-    from asteroid_photometry.config import validate_config
-    from asteroid_photometry.experiment import image_sets
-    from asteroid_photometry.footprint import estimate_footprint, footprint_warnings
+    from asteroid_photometry.core.config import validate_config
+    from asteroid_photometry.world.image_sets import image_sets
+    from asteroid_photometry.core.footprint import estimate_footprint, footprint_warnings
 
     config = validate_config(yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text()))
     sets = image_sets(config)
@@ -291,9 +294,8 @@ def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set
     """The mapper and the outward test stubbed (a real depth-reversed model takes a full set): the reseeding loop and its record."""
     pytest.importorskip("pycolmap")
     from test_reconstruct import synthetic_model, synthetic_scene
-
-    from asteroid_photometry import reconstruct as rc
-    from asteroid_photometry import table2
+    from asteroid_photometry.from_images import reconstruct as rc
+    from asteroid_photometry.experiments import table2
 
     poses, intrinsics, points = synthetic_scene()
     seeds = []

@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from asteroid_photometry import files, metrics
+from asteroid_photometry.core import files
+from asteroid_photometry.evaluation import metrics
 
 
 def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):

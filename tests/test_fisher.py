@@ -1,19 +1,20 @@
-"""Tests of the Fisher information and Cramer-Rao bounds (asteroid_photometry.fisher)."""
+"""Tests of the Fisher information and Cramer-Rao bounds (asteroid_photometry.estimation.fisher)."""
 
 import numpy as np
 import pytest
 
-from asteroid_photometry import fisher, noise
-from asteroid_photometry.estimate import (
-    Observations,
+from asteroid_photometry.estimation import (
+    fisher,
     fit_koizumi_lm,
     light_from_tangent,
-    minnaert_brightness,
+    Observations,
     synthetic_observations,
     tangent_from_light,
 )
-from asteroid_photometry.fisher import cramer_rao_bounds, efficiency, fisher_blocks
-from asteroid_photometry.varpro import fit_varpro
+from asteroid_photometry.estimation.fisher import cramer_rao_bounds, efficiency, fisher_blocks
+from asteroid_photometry.estimation.varpro import fit_varpro
+from asteroid_photometry.reflectance.laws import minnaert_brightness
+from asteroid_photometry.world import noise
 from synthetic_helpers import light_at, per_point_truth
 
 

@@ -4,7 +4,7 @@ import json
 
 import pandas as pd
 
-from asteroid_photometry import mismatch
+from asteroid_photometry.experiments import mismatch
 
 SETTINGS = {"models": ["lambert", "minnaert", "hapke"], "phase_angles_deg": [0, 20]}
 

@@ -2,9 +2,12 @@
 
 import numpy as np
 import pytest
-
-from asteroid_photometry import cameras, estimate, model_fit, photometry
 from test_photometry import ITOKAWA_HAPKE
+
+from asteroid_photometry import estimation
+from asteroid_photometry.estimation import model_fit
+from asteroid_photometry.reflectance import laws as photometry
+from asteroid_photometry.world import cameras
 
 # What each law frees per point and globally (the rest held at the truth): as in config.yaml.
 PLACEMENT = {
@@ -26,7 +29,7 @@ TRUTH = {
 @pytest.fixture(scope="module")
 def geometry():
     light = cameras.light_dir_cam(10.0)
-    obs = estimate.synthetic_observations(150, 12, light, 0.5, 0.7, np.random.default_rng(5))
+    obs = estimation.synthetic_observations(150, 12, light, 0.5, 0.7, np.random.default_rng(5))
     return obs, light
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from asteroid_photometry import noise
+from asteroid_photometry.world import noise
 
 AMICA = noise.SensorModel(full_well_e=30000, read_noise_e=20, bit_depth=12)
 
@@ -157,7 +157,7 @@ def _simulated_draws(rng, n_draws, scale):
 
 @pytest.mark.parametrize("scale", [1.0, 2.0])
 def test_monte_carlo_summary_measures_the_excess_over_the_bound(scale):
-    from asteroid_photometry.metrics import monte_carlo_summary
+    from asteroid_photometry.evaluation.metrics import monte_carlo_summary
 
     table = monte_carlo_summary(_simulated_draws(np.random.default_rng(3), 4000, scale)).set_index("set_id")
     row = table.loc["s"]

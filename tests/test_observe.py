@@ -4,7 +4,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from asteroid_photometry import cameras, observe
+from asteroid_photometry.world import cameras, observe
 
 
 def sphere(radius, centre, resolution):

@@ -9,8 +9,8 @@ import pytest
 
 pycolmap = pytest.importorskip("pycolmap")
 
-from asteroid_photometry import cameras  # noqa: E402
-from asteroid_photometry import reconstruct as rc  # noqa: E402
+from asteroid_photometry.world import cameras  # noqa: E402
+from asteroid_photometry.from_images import reconstruct as rc  # noqa: E402
 
 DISTANCE_M = 5.0  # camera distance from the body centre; the body is a unit ball of points
 IMAGE_SIZE = 400

@@ -9,8 +9,9 @@ Poisson surface over a faceted asteroid, at a size a test can afford.
 import numpy as np
 import pytest
 
-from asteroid_photometry import cloud, estimate, refine
-from asteroid_photometry.cameras import Intrinsics, pixel_rays_cam
+from asteroid_photometry import estimation
+from asteroid_photometry.from_images import cloud, refine
+from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
 
 o3d = pytest.importorskip("open3d")
 
@@ -121,11 +122,11 @@ def test_refined_samples_are_pure_and_give_the_true_albedo_and_k(faceted_ball, r
     pure = refined
     assert len(pure.points) >= 100, "the smooth sphere's candidates find pure, one-facet samples"
     assert pure.n_candidates == 4000 and np.all(np.abs(pure.offset_px) <= 2.0) and np.all(pure.residual <= 1e-3)
-    fit = estimate.fit_koizumi_lm(pure.observations, light_init=LIGHT_CAM)
+    fit = estimation.fit_koizumi_lm(pure.observations, light_init=LIGHT_CAM)
     fitted = np.isfinite(fit.albedo)
     assert fitted.sum() >= 100
-    assert estimate.angle_between_deg(fit.light_dir_cam, LIGHT_CAM) < 0.05
-    assert estimate.angle_between_deg(pure.refined_light_dir_cam, LIGHT_CAM) < 0.1 and abs(pure.refined_minnaert_k - MINNAERT_K) < 2e-3
+    assert estimation.angle_between_deg(fit.light_dir_cam, LIGHT_CAM) < 0.05
+    assert estimation.angle_between_deg(pure.refined_light_dir_cam, LIGHT_CAM) < 0.1 and abs(pure.refined_minnaert_k - MINNAERT_K) < 2e-3
     # Each albedo absorbs its normal's latitude error, cos(lat)^(2k - 1): a per-point scatter, not a bias.
     assert abs(np.mean(fit.albedo[fitted]) - ALBEDO) < 5e-3 and np.median(np.abs(fit.albedo[fitted] - ALBEDO)) < 2e-3
     k_error = fit.minnaert_k[fitted] - MINNAERT_K
@@ -154,10 +155,10 @@ def test_refinement_keeps_the_azimuth_it_is_given_and_one_k_pulls_the_elevation_
             surface, poses, INTRINSICS, images, start, albedo=0.5, minnaert_k=1.0, n_candidates=4000, min_observations=5, axis=_spin_axis(poses),
         )
         assert len(pure.points) >= 100
-        fit = estimate.fit_koizumi_lm(pure.observations, light_init=start)
-        assert estimate.angle_between_deg(fit.light_dir_cam, start) < 0.1
-        assert 0.9 < estimate.angle_between_deg(fit.light_dir_cam, LIGHT_CAM) < 1.1
-        refined_error = estimate.angle_between_deg(pure.refined_light_dir_cam, LIGHT_CAM)
+        fit = estimation.fit_koizumi_lm(pure.observations, light_init=start)
+        assert estimation.angle_between_deg(fit.light_dir_cam, start) < 0.1
+        assert 0.9 < estimation.angle_between_deg(fit.light_dir_cam, LIGHT_CAM) < 1.1
+        refined_error = estimation.angle_between_deg(pure.refined_light_dir_cam, LIGHT_CAM)
         if elevation:
             assert refined_error < 0.5
         else:
@@ -171,8 +172,8 @@ def test_without_refinement_the_sphere_samples_give_biased_k(faceted_ball, refin
     points = surface[0]
     oriented = cloud.OrientedCloud(points, points / RADIUS, np.zeros(len(points), int))
     obs, _ = cloud.cloud_observations(oriented, poses, INTRINSICS, images, min_cos_emission=0.2, min_observations=5, surface=surface)
-    plain = estimate.fit_koizumi_lm(obs, light_init=LIGHT_CAM)
-    after = estimate.fit_koizumi_lm(refined.observations, light_init=LIGHT_CAM)
+    plain = estimation.fit_koizumi_lm(obs, light_init=LIGHT_CAM)
+    after = estimation.fit_koizumi_lm(refined.observations, light_init=LIGHT_CAM)
     plain_error = np.abs(plain.minnaert_k[np.isfinite(plain.minnaert_k)] - MINNAERT_K)
     after_error = np.abs(after.minnaert_k[np.isfinite(after.minnaert_k)] - MINNAERT_K)
     assert len(plain_error) > 1000

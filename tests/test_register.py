@@ -1,4 +1,4 @@
-"""Tests of asteroid_photometry.register (registration onto the shape model) and .quality (scores).
+"""Tests of asteroid_photometry.from_images.register (registration onto the shape model) and .quality (scores).
 
 The registration tests use Ostro's radar model of Itokawa, shipped with the
 workflow: known similarity transforms, a hole of 30 %, the
@@ -10,21 +10,22 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from asteroid_photometry import register
-from asteroid_photometry.failures import DataFailure
-from asteroid_photometry.quality import completeness, point_scores, reconstruction_quality
-from asteroid_photometry.register import (
+from asteroid_photometry.core.failures import DataFailure
+from asteroid_photometry.evaluation.quality import completeness, point_scores, reconstruction_quality
+from asteroid_photometry.from_images import register
+from asteroid_photometry.from_images.register import register_to_shape
+from asteroid_photometry.world import mesh
+from asteroid_photometry.world.mesh import (
     closest_facet,
     decompose_similarity,
     point_to_surface_distance,
-    register_to_shape,
     rotation_angle_deg,
     sample_surface,
     similarity_transform,
     transform_normals,
     transform_points,
 )
-from asteroid_photometry.shape import facet_geometry, load_shape_model
+from asteroid_photometry.world.shape import facet_geometry, load_shape_model
 
 # A box 200 x 100 x 50 m centred on the origin, facets counter-clockwise seen from outside.
 BOX_HALF_M = np.array([100.0, 50.0, 25.0])
@@ -164,7 +165,7 @@ def test_recovers_the_end_over_end_turn(ostro):
     vertices_m, faces = ostro
     rng = np.random.default_rng(4)
     points, normals, length_m = surface_cloud(vertices_m, faces, 5000, rng, noise_rel=0.002)
-    centroid, axes = register.principal_axes(vertices_m, faces)
+    centroid, axes = mesh.principal_axes(vertices_m, faces)
     turn = Rotation.from_rotvec(np.pi * axes[:, 0]).as_matrix()
     body_to_input = similarity_transform(1.0, turn, centroid - turn @ centroid)
     result = register_to_shape(

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
 
-from asteroid_photometry import cameras, observe, render
+from asteroid_photometry.world import cameras, observe, render
 from synthetic_helpers import sphere_image_closed_form
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from asteroid_photometry import cameras, observe, render, surface_maps
+from asteroid_photometry.world import cameras, observe, render, surface_maps
 
 ALBEDO, MINNAERT_K = 0.6, 0.8
 

@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
-
-from asteroid_photometry import cameras, photometry, render, render_models
-from synthetic_helpers import sphere_image_closed_form
 from test_photometry import PARAMS
+
+from asteroid_photometry.reflectance import laws as photometry
+from asteroid_photometry.world import cameras, plugins as render_models, render
+from synthetic_helpers import sphere_image_closed_form
 
 SPHERE = dict(radius_m=100.0, distance_m=5000.0, image_size=48, fov_deg=2.6)
 SPP = 64

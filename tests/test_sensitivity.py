@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from asteroid_photometry import estimate, sensitivity
+from asteroid_photometry import estimation
+from asteroid_photometry.experiments import sensitivity
 
 
 def _unit(rng, n):
@@ -46,7 +47,7 @@ def test_a_point_is_tilted_the_same_way_in_every_view():
         "brightness": np.ones(len(point_index)), "n_points": n_points,
     }
     obs, median = sensitivity.tilted_observations(arrays, rotations, 3.0, np.random.default_rng(7), min_cos_emission=0.1)
-    assert isinstance(obs, estimate.Observations) and obs.n_obs == len(point_index)
+    assert isinstance(obs, estimation.Observations) and obs.n_obs == len(point_index)
     body = np.einsum("nji,nj->ni", rotations[image_index], obs.normal_cam)
     per_point = body.reshape(n_points, n_images, 3)
     np.testing.assert_allclose(per_point, per_point[:, :1, :].repeat(n_images, axis=1), atol=1e-12)  # one tilted normal per point
@@ -70,9 +71,9 @@ def test_summary_counts_the_sets_within_the_bounds():
 
 
 def test_points_of_implausible_k_are_left_out_of_the_score():
-    from asteroid_photometry.table2 import plausible_points
+    from asteroid_photometry.experiments.table2 import plausible_points
 
-    result = estimate.FitResult(
+    result = estimation.FitResult(
         method="koizumi_lm", light_dir_cam=np.array([0.0, 0.0, 1.0]), albedo=np.array([0.5, 1e6, np.nan, 0.6]),
         minnaert_k=np.array([0.8, 4.5, np.nan, 1.1]), n_points_fitted=3, n_obs=40, cost=0.0, n_iterations=1, nfev=1,
         success=True, message="", fit_seconds=0.0,

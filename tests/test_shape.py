@@ -1,4 +1,4 @@
-"""Tests of asteroid_photometry.shape: parsing, verification, facet geometry, download, prepared model."""
+"""Tests of asteroid_photometry.world.shape: parsing, verification, facet geometry, download, prepared model."""
 
 import gzip
 import hashlib
@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from asteroid_photometry import shape
-from asteroid_photometry.shape import ShapeModelError
+from asteroid_photometry.world import shape
+from asteroid_photometry.world.shape import ShapeModelError
 
 SCRIPTS_DIR = Path(__file__).parents[1] / "workflow" / "scripts"
 
@@ -452,7 +452,7 @@ def test_download_keeps_an_existing_file_on_failure(monkeypatch, tmp_path):
 
 def test_write_prepared_model(itokawa_dir, tmp_path, caplog):
     out_npz = tmp_path / "prepared" / "gaskell_ver64q.npz"
-    with caplog.at_level(logging.INFO, logger="asteroid_photometry.shape"):
+    with caplog.at_level(logging.INFO, logger="asteroid_photometry.world.shape"):
         shape.write_prepared_model(itokawa_dir / "itokawa_low.obj", "gaskell_ver64q", out_npz)
     with np.load(out_npz) as prepared:
         assert set(prepared.files) == {

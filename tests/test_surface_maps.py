@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from asteroid_photometry import surface_maps
+from asteroid_photometry.world import surface_maps
 
 FIELD_SPEC = {"kind": "random_field", "albedo_contrast": 0.2, "k_contrast": 0.1, "correlation_length_m": 30.0}
 

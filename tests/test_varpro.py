@@ -1,22 +1,22 @@
-"""Tests of the variable-projection estimator (asteroid_photometry.varpro) and the arrow algebra it shares."""
+"""Tests of the variable-projection estimator (asteroid_photometry.estimation.varpro) and the arrow algebra it shares."""
 
 import numpy as np
 import pytest
 
-from asteroid_photometry import varpro
-from asteroid_photometry.estimate import (
-    FitResult,
-    Observations,
+from asteroid_photometry.estimation import (
     angle_between_deg,
     arrow_covariance,
     fit_koizumi_lm,
+    FitResult,
     light_from_tangent,
     light_std_deg,
+    Observations,
     solve_arrow_system,
     synthetic_observations,
     tangent_from_light,
+    varpro,
 )
-from asteroid_photometry.varpro import VarproResult, fit_varpro
+from asteroid_photometry.estimation.varpro import fit_varpro, VarproResult
 from synthetic_helpers import light_at, per_point_truth
 
 

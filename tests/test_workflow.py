@@ -330,8 +330,7 @@ def fault_config(path):
 def inject_faults(workdir):
     """Blank images; a set cut to four images; a reconstruction whose points are scattered into a blob."""
     import pycolmap
-
-    from asteroid_photometry.stages import write_linear_exr
+    from asteroid_photometry.world.images import write_linear_exr
 
     blank_dir = workdir / "results/render" / BLANK
     for path in blank_dir.glob("image_*.exr"):

@@ -1,24 +1,24 @@
 """Asteroid photometry: render Itokawa with a Minnaert law and recover its parameters.
 
-The library behind the Snakemake workflow. Each module is one stage:
+The library behind the Snakemake workflow, by domain (docs/architecture.md
+draws it). Imports go one way, down this list:
 
-- ``shape``: read, verify and describe the Itokawa shape models (body frame).
-- ``cameras``: intrinsics and per-image poses of the turning body.
-- ``render``: the Minnaert BSDF as a Mitsuba plugin and the image renderer.
-- ``observe``: visibility, shadows and brightness sampling of surface points.
-- ``estimate``: the paper's joint Levenberg-Marquardt fit and Iwano's baseline.
-- ``varpro``: the default estimator (variable projection, weighted, robust).
-- ``noise`` / ``fisher``: the sensor model and the Cramer-Rao bound.
-- ``surface_maps``: spatially varying albedo and k.
-- ``reconstruct`` / ``cloud`` / ``register`` / ``quality`` / ``refine`` /
-  ``table2``: Table 2 from images alone, scored against the truth.
-- ``sensitivity``: what the estimator needs from the geometry.
-- ``photometry`` / ``render_models`` / ``model_fit`` / ``mismatch``: the
-  photometric model family (Lambert, Lommel-Seeliger, Lunar-Lambert,
-  Minnaert, Hapke), its Mitsuba plugin, its fits and the model-mismatch
-  experiment.
-- ``stages``: the file-level stages the rule scripts call.
-- ``metrics`` / ``plots``: comparison with the truth and with the paper.
+- ``reflectance``: the photometric laws (Lambert, Lommel-Seeliger,
+  Lunar-Lambert, Minnaert, Hapke), each written once.
+- ``core``: the config's schema, atomic file writes, failure records, logging,
+  the footprint of a run.
+- ``world``: the synthetic world: shape models, cameras, the Mitsuba renderer
+  and its plugins, the sensor, surface maps, visibility and sampling, the
+  configured image sets, reading a rendered set back.
+- ``estimation``: observations, the estimators (the paper's LM, Iwano's
+  baseline, variable projection), the Fisher information, the model-family
+  fits, and one registry to run them.
+- ``from_images``: structure from motion, registration to the shape model,
+  the oriented cloud and its photometric refinement.
+- ``evaluation``: the truth (read in one place), metrics, reconstruction
+  quality, tables, plots and the summary.
+- ``experiments``: the file-level stages the rule scripts call (Table 1 and
+  its sweeps, the Monte Carlo, Table 2, the geometry study, model mismatch).
 
 Conventions used everywhere
 ---------------------------

@@ -17,11 +17,12 @@ WORKFLOW_DIR = Path(_basedir).resolve().parent
 if str(WORKFLOW_DIR) not in sys.path:
     sys.path.insert(0, str(WORKFLOW_DIR))
 
-from asteroid_photometry.config import validate_config, ConfigError
-from asteroid_photometry.experiment import image_sets, named_entry
-from asteroid_photometry.shape import get_shape_model_spec
-from asteroid_photometry.mismatch import model_sets
-from asteroid_photometry.footprint import estimate_footprint, footprint_warnings
+from asteroid_photometry.core.config import validate_config, ConfigError
+from asteroid_photometry.world.image_sets import image_sets, named_entry
+from asteroid_photometry.world.shape import get_shape_model_spec
+from asteroid_photometry.experiments.mismatch import model_sets
+from asteroid_photometry.experiments.table2 import stage_settings
+from asteroid_photometry.core.footprint import estimate_footprint, footprint_warnings
 
 try:
     config.update(validate_config(config))
@@ -40,22 +41,12 @@ PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["pr
 MONTE_CARLO_SETS = BASE_SETS if config["noise_monte_carlo"]["realisations"] > 0 and config["noise_levels"] else []
 # The geometry sensitivity study explains Table 2: it runs with it.
 SENSITIVITY_SETS = BASE_SETS if config["geometry_sensitivity"]["enabled"] and PRIOR_SETTINGS else []
-# The reconstruction keys each Table 2 stage reads: a change to one leaves the
-# outputs of the stages that do not read it standing (Snakemake reruns a job
-# when its params change).
-RECONSTRUCTION_KEYS = {
-    "reconstruct": ["intrinsics", "camera_position_sigma_m", "tie_point_sigma_px", "prior_seed", "min_pose_inliers", "min_pose_inlier_ratio", "min_track"],
-    "register": ["min_track"],
-    "cloud": ["min_observations_per_point", "min_cos_emission", "purity_tolerance"],
-    "refine": [
-        "min_observations_per_point", "min_cos_emission", "purity_tolerance", "refine_candidates", "refine_max_offset_px",
-        "refine_offset_steps", "refine_purity_tolerance", "refine_max_residual",
-    ],
-}
 
 
 def reconstruction_settings(stage):
-    return {key: config["reconstruction"][key] for key in RECONSTRUCTION_KEYS[stage]}
+    """The reconstruction keys one Table 2 stage reads (declared beside the stage, in the library): a change to
+    another key leaves that stage's outputs standing (Snakemake reruns a job when its params change)."""
+    return stage_settings(config["reconstruction"], stage)
 
 
 LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
@@ -88,6 +79,21 @@ wildcard_constraints:
     method="|".join(ESTIMATORS),
     sweep="|".join(SWEEPS) or "none",
     priors="on|off",
+
+
+# A set's rendered images: written by rule render (clean sets) or add_noise (noisy ones).
+RENDERED_SET_DIR = "results/render/{set_id}"
+
+
+def split_noisy_set(set_id):
+    """``(clean_id, level)`` of a noisy set's id."""
+    clean_id, level = set_id.rsplit("_noise-", 1)
+    return clean_id, level
+
+
+def observation_geometry_of_set(wildcards):
+    """The observation geometry of a set's light angle."""
+    return expand(rules.observation_geometry.output.npz, light_tag=SETS[wildcards.set_id].light_tag)
 
 
 def image_set(wildcards):

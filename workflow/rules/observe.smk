@@ -23,7 +23,7 @@ rule observation_geometry:
 
 rule observe:
     input:
-        geometry=lambda wildcards: f"results/observations/geometry_{SETS[wildcards.set_id].light_tag}.npz",
+        geometry=observation_geometry_of_set,
         images=rules.render.output.images,
     output:
         npz="results/observations/{set_id}.npz",

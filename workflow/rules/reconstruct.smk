@@ -4,7 +4,7 @@
 
 rule reconstruct:
     input:
-        images="results/render/{set_id}",
+        images=RENDERED_SET_DIR,
     output:
         model=directory("results/reconstruction/{set_id}/priors-{priors}"),
     params:
@@ -44,7 +44,7 @@ rule refine_cloud:
     input:
         registration=rules.register_cloud.output.npz,
         model=rules.reconstruct.output.model,
-        images="results/render/{set_id}",
+        images=RENDERED_SET_DIR,
     output:
         npz="results/refined_cloud/{set_id}/priors-{priors}.npz",
     params:
@@ -64,7 +64,7 @@ rule fit_cloud:
         registration=rules.register_cloud.output.npz,
         registration_summary=rules.register_cloud.output.summary,
         model=rules.reconstruct.output.model,
-        images="results/render/{set_id}",
+        images=RENDERED_SET_DIR,
         shape=rules.prepare_shape.output.npz,
         refined=rules.refine_cloud.output.npz,
     output:
@@ -84,12 +84,7 @@ rule fit_cloud:
 
 rule tabulate_table2:
     input:
-        summaries=expand(
-            "results/fits_cloud/{set_id}/priors-{priors}/{method}.json",
-            set_id=BASE_SETS,
-            priors=PRIOR_SETTINGS,
-            method=ESTIMATORS,
-        ),
+        summaries=expand(rules.fit_cloud.output.summary, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
     output:
         csv=report("results/tables/table2.csv", caption="../report/table2.rst", category="Tables"),
         markdown="results/tables/table2.md",
@@ -104,7 +99,9 @@ rule tabulate_table2:
 rule plot_table2:
     input:
         table=rules.tabulate_table2.output.csv,
-        cloud_errors=f"results/fits_cloud/{TABLE2_PLOT_SET}/priors-{PRIOR_SETTINGS[0] if PRIOR_SETTINGS else 'on'}/{TABLE2_PLOT_METHOD}.npz",
+        cloud_errors=expand(
+            rules.fit_cloud.output.errors, set_id=TABLE2_PLOT_SET, priors=PRIOR_SETTINGS[:1] or ["on"], method=TABLE2_PLOT_METHOD
+        ),
     output:
         stages=report("results/plots/table2_errors.png", caption="../report/table2_plots.rst", category="Plots"),
         cloud=report("results/plots/table2_cloud_errors.png", caption="../report/table2_plots.rst", category="Plots"),

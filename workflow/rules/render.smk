@@ -7,7 +7,7 @@ rule render:
         shape=rules.prepare_shape.output.npz,
         cameras=rules.imaging_geometry.output.cameras,
     output:
-        images=directory("results/render/{set_id}"),
+        images=directory(RENDERED_SET_DIR),
     wildcard_constraints:
         set_id=RENDERED_SET,
     params:
@@ -28,9 +28,9 @@ rule render:
 
 rule add_noise:
     input:
-        images="results/render/{clean_id}",
+        images=RENDERED_SET_DIR.format(set_id="{clean_id}"),
     output:
-        images=directory("results/render/{clean_id}_noise-{level}"),
+        images=directory(RENDERED_SET_DIR.format(set_id="{clean_id}_noise-{level}")),
     wildcard_constraints:
         clean_id=RENDERED_SET,
         level=NAME,

@@ -1,8 +1,8 @@
 """Rule script: run one estimator on one set and summarise its errors."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.stages import fit_set
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.table1 import fit_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 fit_set(

@@ -1,8 +1,8 @@
 """Rule script: an estimator on the reconstructed cloud, before and after photometric refinement."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.table2 import fit_cloud_stage
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.table2 import fit_cloud_stage
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 fit_cloud_stage(

@@ -1,8 +1,8 @@
 """Rule script: identity fit, cross-fits and Fisher rows of one set of the model-mismatch experiment."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.mismatch import fit_model_set
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.mismatch import fit_model_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 fit_model_set(

@@ -1,8 +1,8 @@
 """Rule script: one set's rows of the geometry sensitivity study (tilted normals; the true surface sampled as the cloud is)."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.sensitivity import sensitivity_set
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.sensitivity import sensitivity_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 sensitivity_set(

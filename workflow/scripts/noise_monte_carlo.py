@@ -1,8 +1,8 @@
 """Rule script: one noise level drawn many times on one clean set, each draw fitted and scored against the bound."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.stages import noise_monte_carlo_set
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.monte_carlo import noise_monte_carlo_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 noise_monte_carlo_set(

@@ -1,8 +1,8 @@
 """Rule script: the pure-pixel observations of every facet for one light angle."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.stages import write_observation_geometry
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.table1 import write_observation_geometry
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 write_observation_geometry(

@@ -1,8 +1,8 @@
 """Rule script: the paper's Minnaert fit on one Hapke set, from the images and from the law directly."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.mismatch import phase_sweep_set
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.mismatch import phase_sweep_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 phase_sweep_set(snakemake.input.geometry, snakemake.input.images, snakemake.params.light_angle_deg, snakemake.output.json)  # noqa: F821

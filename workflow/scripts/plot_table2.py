@@ -1,8 +1,8 @@
 """Rule script: Table 2's figures (errors from cloud to truth; one cloud coloured by its errors)."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.stages import write_table2_plots
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.table2 import write_table2_plots
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 write_table2_plots(

@@ -1,8 +1,8 @@
 """Rule script: a reconstructed cloud's samples moved to where the images show them pure, with normals fitted to them."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.table2 import refine_stage
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.table2 import refine_stage
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 refine_stage(

@@ -1,8 +1,8 @@
 """Rule script: render the images of one set with the Mitsuba Minnaert BSDF."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.stages import render_set
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.table1 import render_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 render_set(

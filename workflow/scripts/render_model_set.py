@@ -1,8 +1,8 @@
 """Rule script: render one set of the model-mismatch experiment with the photometric plugin."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.mismatch import render_model_set
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.mismatch import render_model_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 render_model_set(

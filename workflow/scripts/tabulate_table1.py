@@ -1,8 +1,8 @@
 """Rule script: Table 1 as CSV and as Markdown beside the paper's values."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
-from asteroid_photometry.logs import setup_logging
-from asteroid_photometry.stages import write_table1
+from asteroid_photometry.core.logs import setup_logging
+from asteroid_photometry.experiments.table1 import write_table1
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 write_table1(snakemake.input.summaries, snakemake.input.paper, snakemake.output.csv, snakemake.output.markdown)  # noqa: F821

@@ -1,0 +1,204 @@
+"""Validate the workflow configuration against ``workflow/schemas/config.schema.yaml``.
+
+Where it sits: the Snakefile calls :func:`validate_config` once on the merged
+config (``configfile:`` plus ``--configfile`` plus ``--config``) before any
+rule uses it. It fills the schema's defaults and turns jsonschema's errors
+into one :class:`ConfigError` whose message names every offending key by its
+path, e.g. ``config key 'observations.min_cos_incidence': 1.5 is greater than
+or equal to the maximum of 1``, and lists the allowed keys when a key is
+unknown (a typo must not pass silently).
+
+Snakemake parses ``--config`` values with int, float and then YAML's
+BaseLoader, so ``--config 'albedos=[0.6]'`` arrives as ``['0.6']`` (strings
+inside lists and mappings). Before validating, strings are therefore read as
+numbers wherever the schema asks for a number and does not allow a string,
+the YAML spellings of null (``null``, ``~``, the empty string) become
+``None`` wherever the schema allows null, and ``true`` / ``false`` (any of
+YAML's or Python's spellings) become booleans wherever the schema asks for a
+boolean and does not allow a string.
+"""
+
+import copy
+import difflib
+import functools
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import jsonschema
+import yaml
+
+__all__ = ["SCHEMA_PATH", "ConfigError", "load_schema", "validate_config"]
+
+SCHEMA_PATH = Path(__file__).resolve().parents[2] / "schemas" / "config.schema.yaml"
+
+_NULL_SPELLINGS = {"", "~", "null", "Null", "NULL"}
+# YAML 1.2's spellings of the booleans, and Python's (a nested --config value is YAML or a Python literal).
+_BOOLEAN_SPELLINGS = {"true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False}
+
+
+class ConfigError(ValueError):
+    """The workflow configuration does not satisfy the schema."""
+
+
+@functools.lru_cache(maxsize=None)
+def _cached_schema(path):
+    schema = yaml.safe_load(Path(path).read_text())
+    jsonschema.Draft202012Validator.check_schema(schema)
+    return schema
+
+
+def load_schema(path=SCHEMA_PATH):
+    """Return (a private copy of) the config JSON Schema, checked against the 2020-12 meta-schema."""
+    return copy.deepcopy(_cached_schema(str(path)))
+
+
+def _fill_defaults(validator_class):
+    """Extend a validator class so that validating also inserts each property's ``default``.
+
+    The recipe from the jsonschema FAQ (the same one snakemake.utils.validate
+    uses), with the default deep-copied so that filled-in objects such as
+    ``observations`` never alias the schema.
+    """
+    validate_properties = validator_class.VALIDATORS["properties"]
+
+    def set_defaults(validator, properties, instance, schema):
+        if isinstance(instance, dict):
+            for key, subschema in properties.items():
+                if "default" in subschema and key not in instance:
+                    instance[key] = copy.deepcopy(subschema["default"])
+        yield from validate_properties(validator, properties, instance, schema)
+
+    return jsonschema.validators.extend(validator_class, {"properties": set_defaults})
+
+
+_DefaultFillingValidator = _fill_defaults(jsonschema.Draft202012Validator)
+
+
+def _schema_types(schema):
+    types = schema.get("type", [])
+    return {types} if isinstance(types, str) else set(types)
+
+
+def _coerce(value, schema):
+    """Read command-line strings as the numbers / nulls the schema asks for (see module docstring)."""
+    types = _schema_types(schema)
+    if isinstance(value, str):
+        if "null" in types and value.strip() in _NULL_SPELLINGS:
+            return None
+        if "boolean" in types and "string" not in types and value.strip() in _BOOLEAN_SPELLINGS:
+            return _BOOLEAN_SPELLINGS[value.strip()]
+        if "string" not in types and types & {"integer", "number"}:
+            text = value.strip()
+            try:
+                return int(text)
+            except ValueError:
+                pass
+            if "number" in types:
+                try:
+                    number = float(text)
+                except ValueError:
+                    return value
+                return number if math.isfinite(number) else value
+        return value
+    if isinstance(value, float) and "integer" in types and "number" not in types and value.is_integer():
+        return int(value)  # 36.0 is a valid JSON integer; hand the workflow an int
+    if isinstance(value, list) and "array" in types and isinstance(schema.get("items"), dict):
+        return [_coerce(item, schema["items"]) for item in value]
+    if isinstance(value, dict) and "object" in types:
+        properties = schema.get("properties", {})
+        return {key: _coerce(item, properties[key]) if key in properties else item for key, item in value.items()}
+    return value
+
+
+def _key_path(path):
+    """Render a jsonschema path deque as ``observations.min_cos_incidence`` or ``albedos[1]``."""
+    text = ""
+    for part in path:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += f".{part}" if text else str(part)
+    return text
+
+
+def _describe(error):
+    """One line naming the offending key for one jsonschema error."""
+    where = _key_path(error.absolute_path)
+    prefix = f"{where}." if where else ""
+    if error.validator == "additionalProperties":
+        allowed = sorted(error.schema.get("properties", {}))
+        unknown = sorted(set(error.instance) - set(allowed))
+        line = "unknown config key(s): {} (allowed: {})".format(
+            ", ".join(f"'{prefix}{key}'" for key in unknown),
+            ", ".join(f"'{prefix}{key}'" for key in allowed),
+        )
+        for key in unknown:
+            match = difflib.get_close_matches(str(key), allowed, n=1)
+            if match:
+                line += f"; did you mean '{prefix}{match[0]}' instead of '{prefix}{key}'?"
+        return line
+    if error.validator == "required":
+        missing = [key for key in error.validator_value if key not in error.instance]
+        return "missing required config key(s): " + ", ".join(f"'{prefix}{key}'" for key in missing)
+    return f"config key '{where or '<top level>'}': {error.message}"
+
+
+def validate_config(config):
+    """Validate ``config`` against the schema, fill in defaults, and return it.
+
+    Returns the validated config with command-line strings coerced (see the
+    module docstring) and every missing key that has a default filled in.
+    ``config`` itself is updated in place as well, as snakemake.utils.validate
+    does, so the Snakefile's global ``config`` sees the defaults.
+
+    Raises:
+        ConfigError: naming each offending key by its path, one problem a line.
+    """
+    if not isinstance(config, Mapping):
+        raise ConfigError(f"the config must be a mapping of keys to values, not {type(config).__name__}")
+    schema = _cached_schema(str(SCHEMA_PATH))
+    candidate = _coerce(copy.deepcopy(dict(config)), schema)
+    errors = sorted(
+        _DefaultFillingValidator(schema).iter_errors(candidate),
+        key=lambda error: (_key_path(error.absolute_path), error.validator),
+    )
+    if errors:
+        problems = list(dict.fromkeys(_describe(error) for error in errors))
+        if len(problems) == 1:
+            raise ConfigError(problems[0])
+        raise ConfigError(f"{len(problems)} config problems:\n" + "\n".join(f"  - {line}" for line in problems))
+    _check_cross_references(candidate)
+    if isinstance(config, dict):
+        config.update(candidate)
+    return candidate
+
+
+def _check_cross_references(config):
+    """What a JSON Schema cannot say: a key that names an entry of another key."""
+    models = config.get("model_mismatch", {})
+    level_names = [level.get("name") for level in config.get("noise_levels", [])]
+    # As for the Monte Carlo: an empty noise_levels turns the noisy cross-fits off, a name that is not there is a mistake.
+    if models.get("enabled") and models.get("noise_level") is not None and level_names and models["noise_level"] not in level_names:
+        raise ConfigError(
+            f"config key 'model_mismatch.noise_level': {models['noise_level']!r} is not the name of a 'noise_levels' entry "
+            f"(names: {level_names}); name one, or null for noiseless cross-fits only"
+        )
+    for key, what in (("parameters", "its parameters"), ("fit", "its per_point / global lists")):
+        lacking = [law for law in models.get("models", []) if law not in models.get(key, {})] if models.get("enabled") else []
+        if lacking:
+            raise ConfigError(f"config key 'model_mismatch.{key}': no entry for {lacking} (each law in model_mismatch.models needs {what})")
+    for law, placement in models.get("fit", {}).items() if models.get("enabled") else ():
+        from asteroid_photometry.reflectance.laws import get_model
+
+        unknown = [name for name in placement.get("per_point", []) + placement.get("global", []) if name not in get_model(law).parameters]
+        if unknown:
+            raise ConfigError(f"config key 'model_mismatch.fit.{law}': {unknown} are not parameters of {law} ({', '.join(get_model(law).parameters)})")
+    study = config.get("noise_monte_carlo", {})
+    names = [level.get("name") for level in config.get("noise_levels", [])]
+    # An empty noise_levels turns the noise off, the Monte Carlo with it; a name that is not there is a mistake.
+    if study.get("realisations", 0) > 0 and names and study["level"] not in names:
+        raise ConfigError(
+            f"config key 'noise_monte_carlo.level': {study['level']!r} is not the name of a 'noise_levels' entry "
+            f"(names: {names}); name one, or set noise_monte_carlo.realisations to 0"
+        )

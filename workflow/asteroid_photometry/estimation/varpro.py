@@ -1,0 +1,1156 @@
+"""Variable projection: the Koizumi joint fit, fast, robust and with uncertainties.
+
+An alternative estimator for the ``fit`` stage, beside
+:func:`~asteroid_photometry.estimation.fit_koizumi_lm`: the same input
+(:class:`~asteroid_photometry.estimation.Observations`), the same estimand (one
+global light direction, an albedo and a Minnaert k per point, weighted least
+squares on the brightness) and a :class:`VarproResult`, a
+:class:`~asteroid_photometry.estimation.FitResult` that also carries standard
+deviations.
+
+Why it is fast. For a fixed light every point's albedo and k follow from a
+2-parameter *linear* fit in log space,
+
+    log b + log cos_o = log albedo + k (log cos_i + log cos_o),
+
+solved in closed form for all points at once. Eliminating them leaves a
+problem in the light's two tangent coordinates only (variable projection);
+each Gauss-Newton step on it is one pass over the observations and a 2x2
+solve (the Schur complement of the per-point blocks, Kaufman's projection).
+The log-space weights ``(b / sigma)**2`` make it approximate the brightness
+metric, so it lands next to the least-squares solution, and one or two
+joint Gauss-Newton passes on the *brightness* residuals (weights
+``1 / sigma**2``, the same arrow-structured algebra as the block LM in
+``estimate``) then reach the true weighted least-squares (maximum-likelihood
+under Gaussian noise) estimate, the one ``fit_koizumi_lm`` finds.
+
+Passes over the data are streamed: the rows are regrouped once into dense
+(points x observations) blocks, one per observation count
+(:class:`PointBlocks`), and every pass walks them in cache-sized chunks, so
+per-point broadcasts and sums are plain axis operations and no array the
+size of the data is made per iteration.
+
+Stages of :func:`fit_varpro`:
+
+1. start: a grid over the light's tangent coordinates on a subsample of
+   points, scored by the brightness cost with closed-form per-point
+   parameters (as ``estimate.search_light``, but all lights of the grid in
+   one vectorised evaluation), then the reduced problem on a larger
+   subsample; skipped when ``light_init`` is given;
+2. the reduced (log-space) problem on all points;
+3. ``polish``: joint Gauss-Newton / Levenberg-Marquardt on the brightness
+   residuals;
+4. optional robustness: Huber or Cauchy loss through iteratively reweighted
+   least squares (IRLS) weights in stages 2 and 3, and rejection of
+   observations whose standardized residual exceeds a MAD-based threshold,
+   followed by a refit;
+5. uncertainty: ``J^T W J`` at the solution, inverted through its arrow
+   structure (``estimate.arrow_covariance``): the light's 2x2 covariance in
+   tangent coordinates and its angular standard deviation, and every
+   point's marginal standard deviations of albedo and k.
+
+Frames, units and the tangent chart follow ``estimate`` and the package
+conventions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from asteroid_photometry.estimation.arrow import arrow_covariance, solve_arrow_system
+from asteroid_photometry.estimation.core import (
+    COS_INCIDENCE_FLOOR,
+    FitResult,
+    INIT_K_RANGE,
+    light_from_tangent,
+    light_std_deg,
+    Observations,
+    tangent_from_light,
+)
+from asteroid_photometry.estimation.iwano import fit_iwano_linear
+
+__all__ = [
+    "LOSSES",
+    "PointBlocks",
+    "VarproResult",
+    "brightness_normal_equations",
+    "fit_varpro",
+    "light_frame",
+]
+
+LOSSES = ("linear", "huber", "cauchy")
+# Default loss thresholds, in units of the standardized residual: the usual
+# constants giving 95 % efficiency under Gaussian noise.
+DEFAULT_F_SCALE = {"linear": np.inf, "huber": 1.345, "cauchy": 2.3849}
+# Rows per chunk of a streamed pass: 64k rows keep a chunk's ~20 temporaries in cache.
+CHUNK_ROWS = 1 << 16
+# MAD of a standard normal: sigma = MAD_TO_SIGMA * median(|z|).
+MAD_TO_SIGMA = 1.482602218505602
+# A pass keeps at most this many |standardized residual| samples for MAD scale estimates.
+MAD_SAMPLES = 200_000
+# Fits whose RMS relative residual is below this are exact (noiseless data): stop iterating.
+EXACT_FIT_RELATIVE = 1e-12
+# Noise scale floor relative to the typical brightness, so that noiseless data never divide by 0.
+SCALE_FLOOR_RELATIVE = 1e-9
+# IRLS sweeps per point and pass of the reduced problem with a robust loss: Huber ones from a
+# plain fit first (only when there is no previous estimate), then the loss's own.
+ROBUST_START_SWEEPS = 4
+ROBUST_SWEEPS = 3
+# Robust losses: step tolerance (chi-square units) of the linearly converging IRLS, and rounds of
+# the noise scale (re-estimated by MAD) until it changes by less than SCALE_ROUND_CHANGE.
+ROBUST_STEP_TOL = 1e-4
+MAX_SCALE_ROUNDS = 4
+SCALE_ROUND_CHANGE = 0.02
+# A point's 2x2 block counts as singular below this relative determinant.
+SINGULAR_RELATIVE = 1e-12
+
+
+# --------------------------------------------------------------------------
+# Layout: rows regrouped into dense (points x observations) blocks
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _Block:
+    count: int  # observations per point in this block
+    offset: int  # first slot of the block's points in the flat per-point arrays
+    rows: np.ndarray  # (n, count) row indices into the Observations
+    normal: np.ndarray  # (3, n * count) unit normals, component-major (camera frame)
+    log_cos_o: np.ndarray  # (n, count)
+    brightness: np.ndarray  # (n, count)
+    inv_var: np.ndarray | None  # (n, count) 1 / sigma**2, or None for the layout's scalar
+    keep: np.ndarray | None = None  # (n, count) 1.0 kept / 0.0 rejected, None: all kept
+
+    @property
+    def n(self) -> int:
+        return self.rows.shape[0]
+
+
+@dataclasses.dataclass
+class _Chunk:
+    block: _Block
+    points: slice  # slice of the flat per-point arrays
+    p0: int
+    p1: int
+
+    @property
+    def shape(self):
+        return self.p1 - self.p0, self.block.count
+
+    @property
+    def normal(self):
+        count = self.block.count
+        return self.block.normal[:, self.p0 * count : self.p1 * count]
+
+    def rows_of(self, name):
+        array = getattr(self.block, name)
+        return None if array is None else array[self.p0 : self.p1]
+
+
+class PointBlocks:
+    """The rows of the fitted points, regrouped for streamed passes.
+
+    Points with at least ``min_observations`` rows (and, if ``points`` is
+    given, only those; :meth:`subset` cuts a smaller layout from this one) are grouped by their number of observations ``c``;
+    each group is a dense block of shape (points, c), so a per-point value
+    broadcasts along axis 1 and a per-point sum is a sum along it. The flat
+    per-point arrays of the solvers list the points block by block
+    (``point_ids`` gives their indices in the Observations). Works for rows
+    in any order; rows sorted by point (as ``observe`` and
+    ``synthetic_observations`` write them) avoid a sort.
+
+    ``inv_var`` is ``1 / sigma**2`` per observation: a scalar or an (n_obs,)
+    array in the Observations' row order.
+    """
+
+    def __init__(self, obs: Observations, *, min_observations=2, points=None, inv_var=1.0, chunk_rows=CHUNK_ROWS):
+        counts = obs.observations_per_point
+        eligible = counts >= max(int(min_observations), 1)
+        if points is not None:
+            chosen = np.zeros(obs.n_points, bool)
+            chosen[np.asarray(points, dtype=np.int64)] = True
+            eligible &= chosen
+        point_index = obs.point_index
+        order = None
+        if obs.n_obs > 1 and not bool(np.all(point_index[1:] >= point_index[:-1])):
+            order = np.argsort(point_index, kind="stable")
+        starts = np.cumsum(counts) - counts
+        per_row_inv_var = np.ndim(inv_var) > 0
+        self.inv_var = 1.0 if per_row_inv_var else float(inv_var)
+        self.n_points_total = obs.n_points
+        self.chunk_rows = int(chunk_rows)
+        cos_emission = obs.cos_emission
+        self.blocks: list[_Block] = []
+        point_ids = []
+        for count in np.unique(counts[eligible]):
+            count = int(count)
+            ids = np.flatnonzero(eligible & (counts == count))
+            rows = starts[ids, None] + np.arange(count)
+            if order is not None:
+                rows = order[rows]
+            flat_rows = rows.ravel()
+            normal = np.empty((3, flat_rows.size))
+            for start in range(0, flat_rows.size, CHUNK_ROWS):  # row gathers in chunks: fastest, small temporaries
+                normal[:, start : start + CHUNK_ROWS] = obs.normal_cam[flat_rows[start : start + CHUNK_ROWS]].T
+            self.blocks.append(
+                _Block(
+                    count=count,
+                    offset=sum(block.n for block in self.blocks),
+                    rows=rows,
+                    normal=normal,
+                    log_cos_o=np.log(cos_emission[rows]),
+                    brightness=obs.brightness[rows],
+                    inv_var=np.asarray(inv_var, dtype=np.float64)[rows] if per_row_inv_var else None,
+                )
+            )
+            point_ids.append(ids)
+        self._finish(point_ids)
+
+    def _finish(self, point_ids):
+        self.point_ids = np.concatenate(point_ids) if point_ids else np.zeros(0, np.int64)
+        self.n_points = int(sum(block.n for block in self.blocks))
+        self.n_rows = int(sum(block.rows.size for block in self.blocks))
+        self._ones = {block.count: np.ones(block.count) for block in self.blocks}
+        self.chunks = []
+        for block in self.blocks:
+            step = max(1, self.chunk_rows // block.count)
+            for p0 in range(0, block.n, step):
+                p1 = min(block.n, p0 + step)
+                self.chunks.append(_Chunk(block, slice(block.offset + p0, block.offset + p1), p0, p1))
+        # Typical |b| / sigma: the reference of the noise-scale floor.
+        stride = max(1, self.n_rows // 100_000)
+        sample = [_strided(np.abs(b.brightness) * np.sqrt(self._inv_var_of(b)), stride) for b in self.blocks]
+        self.typical_brightness = float(np.median(np.concatenate(sample))) if sample else 1.0
+        self.typical_brightness = self.typical_brightness or 1.0
+
+    def subset(self, flat_points) -> "PointBlocks":
+        """A layout of some of these points (increasing flat indices), cut from this one's arrays."""
+        flat_points = np.asarray(flat_points, dtype=np.int64)
+        sub = object.__new__(PointBlocks)
+        sub.inv_var, sub.n_points_total, sub.chunk_rows = self.inv_var, self.n_points_total, self.chunk_rows
+        sub.blocks, point_ids = [], []
+        for block in self.blocks:
+            low, high = np.searchsorted(flat_points, [block.offset, block.offset + block.n])
+            local = flat_points[low:high] - block.offset
+            if local.size == 0:
+                continue
+            sub.blocks.append(
+                _Block(
+                    count=block.count,
+                    offset=sum(b.n for b in sub.blocks),
+                    rows=block.rows[local],
+                    normal=block.normal.reshape(3, block.n, block.count)[:, local].reshape(3, -1),
+                    log_cos_o=block.log_cos_o[local],
+                    brightness=block.brightness[local],
+                    inv_var=None if block.inv_var is None else block.inv_var[local],
+                    keep=None if block.keep is None else block.keep[local],
+                )
+            )
+            point_ids.append(self.point_ids[block.offset + local])
+        sub._finish(point_ids)
+        return sub
+
+    def rows(self) -> np.ndarray:
+        """Row indices (into the Observations) of every row of the layout."""
+        return np.concatenate([block.rows.ravel() for block in self.blocks]) if self.blocks else np.zeros(0, np.int64)
+
+    def ones(self, count):
+        return self._ones[count]
+
+    def weight(self, chunk: _Chunk):
+        """1 / sigma**2 times the keep mask, for a chunk: an array, or the scalar when uniform and all kept."""
+        inv_var = chunk.rows_of("inv_var")
+        keep = chunk.rows_of("keep")
+        weight = self.inv_var if inv_var is None else inv_var
+        return weight if keep is None else weight * keep
+
+    def _inv_var_of(self, block: _Block):
+        return self.inv_var if block.inv_var is None else block.inv_var
+
+    @property
+    def n_params(self) -> int:
+        return 2 + 2 * self.n_points
+
+    def n_rejected(self) -> int:
+        return int(sum(np.count_nonzero(block.keep == 0.0) for block in self.blocks if block.keep is not None))
+
+    def set_keep(self, keep_rows: np.ndarray) -> int:
+        """Mark rows kept (True) or rejected, from an (n_obs,) mask; returns the number of rows that changed."""
+        changed = 0
+        for block in self.blocks:
+            new = keep_rows[block.rows].astype(np.float64)
+            old = np.ones_like(new) if block.keep is None else block.keep
+            changed += int(np.count_nonzero(new != old))
+            block.keep = None if np.all(new == 1.0) else new
+        return changed
+
+    def rows_used(self, n_obs: int, point_valid: np.ndarray) -> np.ndarray:
+        """(n_obs,) bool: rows of valid points that are kept."""
+        used = np.zeros(n_obs, bool)
+        for block in self.blocks:
+            valid = point_valid[block.offset : block.offset + block.n, None]
+            kept = np.ones(block.rows.shape, bool) if block.keep is None else block.keep > 0
+            used[block.rows] = kept & valid
+        return used
+
+    def per_point(self, flat_values, fill=np.nan) -> np.ndarray:
+        """Scatter flat per-point values (block order) to an (n_points,) array of the Observations."""
+        out = np.full(self.n_points_total, fill, dtype=np.float64)
+        out[self.point_ids] = flat_values
+        return out
+
+
+def _strided(values, stride):
+    return values.ravel()[:: max(int(stride), 1)]
+
+
+def light_frame(tangent) -> np.ndarray:
+    """Rows: the light ``l`` (camera frame) and its derivatives ``dl/da``, ``dl/db`` in tangent coordinates."""
+    a, b = float(tangent[0]), float(tangent[1])
+    norm = np.sqrt(1.0 + a * a + b * b)
+    light = np.array([a, b, -1.0]) / norm
+    return np.stack(
+        [light, (np.array([1.0, 0.0, 0.0]) - light * light[0]) / norm, (np.array([0.0, 1.0, 0.0]) - light * light[1]) / norm]
+    )
+
+
+# --------------------------------------------------------------------------
+# Losses (IRLS weights)
+# --------------------------------------------------------------------------
+
+
+class _Loss:
+    """rho(z) and the IRLS weight psi(z)/z of a standardized residual z, threshold ``f_scale``."""
+
+    def __init__(self, name: str, f_scale):
+        if name not in LOSSES:
+            raise ValueError(f"fit_varpro: loss must be one of {LOSSES}, got {name!r}")
+        self.name = name
+        self.f_scale = DEFAULT_F_SCALE[name] if f_scale is None else float(f_scale)
+        if not (self.f_scale > 0.0):
+            raise ValueError(f"fit_varpro: f_scale must be > 0, got {f_scale!r}")
+        self.robust = name != "linear"
+
+    def weight_and_rho(self, z):
+        c = self.f_scale
+        if self.name == "huber":
+            size = np.abs(z)
+            inside = size <= c
+            with np.errstate(divide="ignore"):
+                weight = np.where(inside, 1.0, c / size)
+            return weight, np.where(inside, 0.5 * z * z, c * size - 0.5 * c * c)
+        ratio = (z / c) ** 2  # cauchy
+        return 1.0 / (1.0 + ratio), 0.5 * c * c * np.log1p(ratio)
+
+
+HUBER = _Loss("huber", None)
+
+
+# --------------------------------------------------------------------------
+# Streamed passes
+# --------------------------------------------------------------------------
+
+
+class _PassSums:
+    """Per-point blocks of J^T W J and J^T W r, light blocks and scalars of one pass."""
+
+    def __init__(self, m):
+        self.n_params = 2 + 2 * m
+        for name in ("u11", "u12", "u22", "wa1", "wa2", "wb1", "wb2", "g1", "g2"):
+            setattr(self, name, np.zeros(m))
+        self.v = np.zeros(3)  # v_aa, v_ab, v_bb
+        self.g_light = np.zeros(2)
+        self.objective = 0.0  # the loss being minimised (0.5 sum w r^2 for linear)
+        self.cost = 0.0  # 0.5 sum of squared brightness residuals over kept rows (unweighted)
+        self.chi2 = 0.0  # sum of weighted squared residuals over kept rows (no robust weights)
+        self.norm = 0.0  # sum of weighted squared brightness (exact-fit reference)
+        self.n_rows = 0  # kept, usable rows
+        self.samples = []  # |standardized residual| samples for MAD
+
+    def mad_sigma(self) -> float:
+        if not self.samples:
+            return 0.0
+        sample = np.concatenate(self.samples)
+        return MAD_TO_SIGMA * float(np.median(sample)) if sample.size else 0.0
+
+
+def _chunk_geometry(chunk, frame):
+    """For a chunk, shaped (P, c): cos_i floored at ``COS_INCIDENCE_FLOOR``, lit (cos_i above the floor),
+    and the tangent derivatives of log cos_i (zero where unlit, as in ``estimate.KoizumiProblem``)."""
+    shape = chunk.shape
+    projected = frame @ chunk.normal
+    cos_i = projected[0].reshape(shape)
+    lit = cos_i > COS_INCIDENCE_FLOOR
+    cos_i = np.maximum(cos_i, COS_INCIDENCE_FLOOR)
+    inverse = 1.0 / cos_i
+    inverse *= lit
+    d_log_a = projected[1].reshape(shape) * inverse
+    d_log_b = projected[2].reshape(shape) * inverse
+    return cos_i, lit, d_log_a, d_log_b
+
+
+def _dot(a, b):
+    """Per-point sum of products along axis 1."""
+    return np.einsum("pc,pc->p", a, b)
+
+
+def _sum(a, ones) -> float:
+    """Sum of a (P, c) chunk array (per-point sums by BLAS, then their sum)."""
+    return float(np.sum(a @ ones))
+
+
+def _total(a, b):
+    """Sum of the products of two arrays of the same shape (a BLAS dot product)."""
+    return float(np.dot(a.ravel(), b.ravel()))
+
+
+def _weighted_line(weight, x, y, ones):
+    """Per-point weighted least-squares line ``y = ybar + k (x - xbar)`` of a chunk, closed form.
+
+    Returns ``(ybar, k, xbar, s0, sxx, dx, dy, ok)`` with ``s0`` the weight
+    sum, ``sxx`` the centred second moment, ``dx``, ``dy`` the centred data
+    and ``ok`` where the slope is determined (k = 1 elsewhere).
+    """
+    s0 = weight @ ones
+    ok = s0 > 0
+    safe_s0 = np.where(ok, s0, 1.0)
+    x_mean = _dot(weight, x) / safe_s0
+    y_mean = _dot(weight, y) / safe_s0
+    dx = x - x_mean[:, None]
+    dy = y - y_mean[:, None]
+    w_dx = weight * dx
+    sxx = _dot(w_dx, dx)
+    sxy = _dot(w_dx, dy)
+    ok &= sxx > 1e-12 * s0
+    k = np.where(ok, sxy / np.where(ok, sxx, 1.0), 1.0)
+    return y_mean, k, x_mean, s0, sxx, dx, dy, ok
+
+
+def _reduced_pass(layout: PointBlocks, tangent, loss: _Loss, scale: float, previous=None, sample_stride=0):
+    """The log-space problem at a light: closed-form log albedo and k per point, and the light's Schur blocks.
+
+    Per point, weighted least squares of ``y = log b + log cos_o`` on ``x =
+    log cos_i + log cos_o`` with weights ``w = b**2 / sigma**2`` (times the
+    IRLS weight of the residual under the previous per-point parameters,
+    ``previous = (log_albedo, k)``, for a robust loss); rows with ``b <= 0``
+    or unlit get no weight. The per-point parameters are centred, ``y = c_p
+    + k_p (x - xbar_p)``, which makes U_p diagonal. Returns ``(sums,
+    log_albedo, k, valid)``; the point gradient is zero by construction (the
+    inner problem is solved exactly). ``sample_stride > 0`` keeps every
+    so-many |standardized residual| for a MAD.
+    """
+    frame = light_frame(tangent)
+    m = layout.n_points
+    sums = _PassSums(m)
+    log_albedo, minnaert_k, valid = np.zeros(m), np.ones(m), np.zeros(m, bool)
+    v_aa = v_ab = v_bb = g_a = g_b = 0.0
+    for chunk in layout.chunks:
+        sl = chunk.points
+        ones = layout.ones(chunk.block.count)
+        brightness = chunk.rows_of("brightness")
+        log_cos_o = chunk.rows_of("log_cos_o")
+        cos_i, lit, d_log_a, d_log_b = _chunk_geometry(chunk, frame)
+        positive = brightness > 0.0
+        x = np.log(cos_i)
+        x += log_cos_o
+        y = np.log(np.maximum(brightness, 1e-300))
+        y += log_cos_o
+        base_weight = brightness * brightness
+        base_weight *= layout.weight(chunk)
+        base_weight *= lit & positive
+        if loss.robust:
+            # IRLS per point, inside the chunk: from the previous parameters, or from a plain fit
+            # made robust with Huber weights first (convex) so that a redescending loss starts
+            # in the right basin.
+            if previous is None:
+                fit = _weighted_line(base_weight, x, y, ones)
+                sweeps = [HUBER] * ROBUST_START_SWEEPS + [loss] * ROBUST_SWEEPS
+            else:
+                fit = None
+                line = previous[0][sl, None], previous[1][sl, None]
+                sweeps = [loss] * ROBUST_SWEEPS
+            # Residuals and weights from the model brightness, not the observed one: an outlier
+            # 3x too bright would otherwise also get 9x the weight b**2.
+            inv_var = layout.weight(chunk) * (lit & positive)
+            for sweep_loss in sweeps:
+                if fit is not None:
+                    line = fit[0][:, None] - fit[1][:, None] * fit[2][:, None], fit[1][:, None]  # log albedo, k
+                with np.errstate(over="ignore"):
+                    model = np.exp(line[0] + line[1] * x - log_cos_o)
+                z = (brightness - model) * np.sqrt(inv_var) / scale
+                weight = inv_var * model * model * sweep_loss.weight_and_rho(z)[0]
+                fit = _weighted_line(weight, x, y, ones)
+        else:
+            weight = base_weight
+            fit = _weighted_line(weight, x, y, ones)
+        y_mean, k, x_mean, s0, sxx, dx, dy, ok = fit
+        residual = dy - k[:, None] * dx
+        log_albedo[sl] = y_mean - k * x_mean
+        minnaert_k[sl] = k
+        valid[sl] = ok
+        # Objective and MAD samples on the standardized (brightness-like) residual.
+        chi2 = base_weight * residual
+        chi2 *= residual
+        if loss.robust:
+            z_base = np.sqrt(base_weight) * residual
+            sums.objective += scale * scale * float(np.sum(loss.weight_and_rho(z_base / scale)[1]))
+            sums.chi2 += _sum(chi2, ones)
+        else:
+            total = _sum(chi2, ones)
+            sums.objective += 0.5 * total
+            sums.chi2 += total
+        sums.norm += _sum(base_weight, ones)
+        sums.n_rows += int(np.count_nonzero(base_weight))
+        if sample_stride:
+            sums.samples.append(np.sqrt(_strided(chi2[base_weight > 0], sample_stride)))
+        # Jacobian of r = y - c - k (x - xbar): light columns -k dlog/dt, point columns -1 and -(x - xbar).
+        kk = np.where(ok, k, 0.0)  # singular points drop out of the light problem
+        w_a = weight * d_log_a
+        w_b = weight * d_log_b
+        sums.u11[sl] = np.where(ok, s0, 1.0)
+        sums.u22[sl] = np.where(ok, sxx, 1.0)
+        sums.wa1[sl] = kk * (w_a @ ones)
+        sums.wa2[sl] = kk * _dot(w_a, dx)
+        sums.wb1[sl] = kk * (w_b @ ones)
+        sums.wb2[sl] = kk * _dot(w_b, dx)
+        k2 = kk * kk
+        v_aa += float(k2 @ _dot(w_a, d_log_a))
+        v_ab += float(k2 @ _dot(w_a, d_log_b))
+        v_bb += float(k2 @ _dot(w_b, d_log_b))
+        g_a -= float(kk @ _dot(w_a, residual))
+        g_b -= float(kk @ _dot(w_b, residual))
+    sums.v[:] = v_aa, v_ab, v_bb
+    sums.g_light[:] = g_a, g_b
+    return sums, log_albedo, minnaert_k, valid
+
+
+def _joint_pass(layout: PointBlocks, tangent, albedo, minnaert_k, loss: _Loss, scale: float, sample_stride=0):
+    """Brightness residuals at (light, albedo, k): blocks of J^T W J and the gradient J^T W r.
+
+    Residual ``r = albedo cos_i**k cos_o**(k-1) - b`` with weight ``1 /
+    sigma**2`` (times the IRLS weight for a robust loss); parameters per
+    point are (albedo, k), as in ``estimate.KoizumiProblem``, and ``cos_i``
+    is floored the same way. ``sample_stride > 0`` keeps every so-many
+    |standardized residual| of kept rows for a MAD.
+    """
+    frame = light_frame(tangent)
+    sums = _PassSums(layout.n_points)
+    v_aa = v_ab = v_bb = g_a = g_b = 0.0
+    for chunk in layout.chunks:
+        sl = chunk.points
+        ones = layout.ones(chunk.block.count)
+        rho, k = albedo[sl], minnaert_k[sl]
+        brightness = chunk.rows_of("brightness")
+        log_cos_o = chunk.rows_of("log_cos_o")
+        kept = chunk.rows_of("keep")
+        cos_i, lit, d_log_a, d_log_b = _chunk_geometry(chunk, frame)
+        x = np.log(cos_i)
+        x += log_cos_o
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild trial k: infinite cost, step rejected
+            shape_term = k[:, None] * x
+            shape_term -= log_cos_o
+            np.exp(shape_term, out=shape_term)  # cos_i^k cos_o^(k-1)
+            residual = rho[:, None] * shape_term
+            residual -= brightness
+        base_weight = layout.weight(chunk)
+        weighted_residual = base_weight * residual
+        chi2 = _total(weighted_residual, residual)
+        if loss.robust:
+            z = residual * np.sqrt(base_weight)
+            robust_weight, rho_z = loss.weight_and_rho(z / scale)
+            weight = base_weight * robust_weight
+            sums.objective += scale * scale * float(np.sum(rho_z))
+        else:
+            weight = base_weight
+            sums.objective += 0.5 * chi2
+        sums.chi2 += chi2
+        sums.cost += 0.5 * (_total(residual, residual) if kept is None else _total(residual * kept, residual))
+        sums.norm += _total(base_weight * brightness, brightness) if np.ndim(base_weight) else base_weight * _total(brightness, brightness)
+        sums.n_rows += residual.size if kept is None else int(np.count_nonzero(kept))
+        if sample_stride:
+            z_abs = np.abs(residual) * np.sqrt(base_weight)
+            sums.samples.append(_strided(z_abs if kept is None else z_abs[kept > 0], sample_stride))
+        q = shape_term * shape_term
+        q *= weight
+        h = shape_term * residual
+        h *= weight
+        q_x = q * x
+        q_a = q * d_log_a
+        q_b = q * d_log_b
+        k_rho = k * rho
+        sums.u11[sl] = q @ ones
+        sums.u12[sl] = rho * (q_x @ ones)
+        sums.u22[sl] = rho * rho * _dot(q_x, x)
+        sums.wa1[sl] = k_rho * (q_a @ ones)
+        sums.wa2[sl] = k_rho * rho * _dot(q_x, d_log_a)
+        sums.wb1[sl] = k_rho * (q_b @ ones)
+        sums.wb2[sl] = k_rho * rho * _dot(q_x, d_log_b)
+        k_rho2 = k_rho * k_rho
+        v_aa += float(k_rho2 @ _dot(q_a, d_log_a))
+        v_ab += float(k_rho2 @ _dot(q_a, d_log_b))
+        v_bb += float(k_rho2 @ _dot(q_b, d_log_b))
+        sums.g1[sl] = h @ ones
+        sums.g2[sl] = rho * _dot(h, x)
+        g_a += float(k_rho @ _dot(h, d_log_a))
+        g_b += float(k_rho @ _dot(h, d_log_b))
+    sums.v[:] = v_aa, v_ab, v_bb
+    sums.g_light[:] = g_a, g_b
+    return sums
+
+
+def brightness_normal_equations(blocks: PointBlocks, tangent, albedo, minnaert_k) -> _PassSums:
+    """Blocks of ``J^T W J`` and ``J^T W r`` of the brightness residuals, ``W = 1 / sigma**2`` of ``blocks``.
+
+    ``albedo`` and ``minnaert_k`` are flat per-point arrays in the blocks'
+    order (``blocks.point_ids``). The returned sums hold ``v`` (v_aa, v_ab,
+    v_bb), per point ``u11, u12, u22`` (albedo, k), ``wa1, wa2, wb1, wb2``
+    (light rows a, b; point columns albedo, k), the gradients, and ``chi2``.
+    Used by ``fisher`` for the information matrix.
+    """
+    return _joint_pass(blocks, tangent, albedo, minnaert_k, _Loss("linear", None), 1.0)
+
+
+def _keep_pass(layout: PointBlocks, tangent, albedo, minnaert_k, threshold, keep_rows):
+    """Mark in ``keep_rows`` (n_obs,) the rows whose |standardized brightness residual| is <= ``threshold``."""
+    frame = light_frame(tangent)
+    for chunk in layout.chunks:
+        sl = chunk.points
+        log_cos_o = chunk.rows_of("log_cos_o")
+        cos_i = (frame[0] @ chunk.normal).reshape(chunk.shape)
+        x = np.log(np.maximum(cos_i, COS_INCIDENCE_FLOOR)) + log_cos_o
+        with np.errstate(over="ignore", invalid="ignore"):
+            model = albedo[sl, None] * np.exp(minnaert_k[sl, None] * x - log_cos_o)
+        inv_var = chunk.rows_of("inv_var")
+        size = np.abs(model - chunk.rows_of("brightness")) * np.sqrt(layout.inv_var if inv_var is None else inv_var)
+        keep_rows[chunk.block.rows[chunk.p0 : chunk.p1]] = size <= threshold
+
+
+def _point_valid(sums: _PassSums) -> np.ndarray:
+    det = sums.u11 * sums.u22 - sums.u12 * sums.u12
+    return (sums.u11 > 0) & (sums.u22 > 0) & (det > SINGULAR_RELATIVE * sums.u11 * sums.u22) & np.isfinite(det)
+
+
+def _masked_blocks(sums: _PassSums, valid, damping=0.0):
+    """Blocks for the arrow solve with invalid points decoupled (identity block, zero coupling and gradient)."""
+    factor = 1.0 + damping
+    u11 = np.where(valid, sums.u11 * factor, 1.0)
+    u22 = np.where(valid, sums.u22 * factor, 1.0)
+    u12 = np.where(valid, sums.u12, 0.0)
+    couplings = tuple(np.where(valid, value, 0.0) for value in (sums.wa1, sums.wa2, sums.wb1, sums.wb2))
+    gradient = (np.where(valid, sums.g1, 0.0), np.where(valid, sums.g2, 0.0))
+    v_aa, v_ab, v_bb = sums.v
+    return (v_aa * factor, v_ab, v_bb * factor), (u11, u12, u22), couplings, tuple(sums.g_light), gradient
+
+
+def _step_chi2(sums, valid, step_light, step_1, step_2, damping):
+    """delta^T H delta (undamped H) of a step solving (H + damping diag H) delta = -g."""
+    gradient_dot = float(sums.g_light @ step_light) + float(np.sum(np.where(valid, sums.g1 * step_1 + sums.g2 * step_2, 0.0)))
+    damped = damping * (
+        sums.v[0] * step_light[0] ** 2
+        + sums.v[2] * step_light[1] ** 2
+        + float(np.sum(np.where(valid, sums.u11 * step_1 * step_1 + sums.u22 * step_2 * step_2, 0.0)))
+    )
+    return -gradient_dot - damped
+
+
+def _exact(sums: _PassSums) -> bool:
+    return sums.norm > 0 and sums.chi2 <= (EXACT_FIT_RELATIVE**2) * sums.norm
+
+
+# --------------------------------------------------------------------------
+# Solvers
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _SolveLog:
+    passes: int = 0
+    iterations: int = 0
+    message: str = ""
+    success: bool = True
+
+
+def _solve_reduced(layout, tangent, loss, scale, variance_scale, max_iterations, step_tol, log: _SolveLog, stride=0):
+    """Gauss-Newton / LM on the light's tangent coordinates with albedo and k projected out (log space)."""
+    tangent = np.asarray(tangent, dtype=np.float64).copy()
+    state = _reduced_pass(layout, tangent, loss, scale, None, stride)
+    log.passes += 1
+    if loss.robust:  # a second pass with IRLS weights from the first one's per-point parameters
+        state = _reduced_pass(layout, tangent, loss, scale, state[1:3], stride)
+        log.passes += 1
+    damping = 0.0
+    for _ in range(max_iterations):
+        sums, log_albedo, minnaert_k, valid = state
+        if _exact(sums):
+            log.message = "reduced problem: exact fit"
+            break
+        light_block, point_blocks, couplings, g_light, _ = _masked_blocks(sums, valid)
+        light_block = (light_block[0] * (1.0 + damping), light_block[1], light_block[2] * (1.0 + damping))
+        zero = np.zeros(layout.n_points)
+        step, _, _ = solve_arrow_system(light_block, point_blocks, couplings, g_light, (zero, zero))
+        if not np.all(np.isfinite(step)):
+            log.message, log.success = "reduced problem: singular light system", False
+            break
+        chi2 = _step_chi2(sums, np.zeros(layout.n_points, bool), step, zero, zero, damping) / variance_scale(sums)
+        if chi2 <= step_tol:
+            log.message = "reduced problem: step below tolerance"
+            break
+        trial = _reduced_pass(layout, tangent + step, loss, scale, (log_albedo, minnaert_k), stride)
+        log.passes += 1
+        log.iterations += 1
+        if np.isfinite(trial[0].objective) and trial[0].objective <= sums.objective:
+            tangent, state = tangent + step, trial
+            damping = 0.0 if damping < 1e-6 else damping / 10.0
+        else:
+            damping = max(1e-4, damping * 10.0)
+            if damping > 1e8:
+                log.message = "reduced problem: the cost cannot be lowered further"
+                break
+    else:
+        log.message = f"reduced problem: {max_iterations} iterations"
+    return tangent, state
+
+
+def _solve_joint(layout, tangent, albedo, minnaert_k, valid, loss, scale, variance_scale, max_iterations, step_tol, log, stride=0):
+    """Gauss-Newton / LM on all parameters (brightness residuals), steps through the arrow structure."""
+    tangent, albedo, minnaert_k = np.array(tangent, float), albedo.copy(), minnaert_k.copy()
+    sums = _joint_pass(layout, tangent, albedo, minnaert_k, loss, scale, stride)
+    log.passes += 1
+    damping = 0.0
+    for _ in range(max_iterations):
+        point_valid = valid & _point_valid(sums)
+        if _exact(sums):
+            log.message = "exact fit"
+            break
+        blocks = _masked_blocks(sums, point_valid, damping)
+        step_light, step_albedo, step_k = solve_arrow_system(*blocks)
+        if not (np.all(np.isfinite(step_light)) and np.all(np.isfinite(step_albedo[point_valid]))):
+            log.message, log.success = "singular normal equations", False
+            break
+        chi2 = _step_chi2(sums, point_valid, step_light, step_albedo, step_k, damping) / variance_scale(sums)
+        if chi2 <= step_tol:
+            log.message = "step below tolerance"
+            break
+        trial_albedo = np.where(point_valid, albedo + step_albedo, albedo)
+        trial_k = np.where(point_valid, minnaert_k + step_k, minnaert_k)
+        trial = _joint_pass(layout, tangent + step_light, trial_albedo, trial_k, loss, scale, stride)
+        log.passes += 1
+        log.iterations += 1
+        if np.isfinite(trial.objective) and trial.objective <= sums.objective:
+            tangent, albedo, minnaert_k, sums = tangent + step_light, trial_albedo, trial_k, trial
+            damping = 0.0 if damping < 1e-6 else damping / 10.0
+        else:
+            damping = max(1e-4, damping * 10.0)
+            if damping > 1e8:
+                log.message = "the cost cannot be lowered further"
+                break
+    else:
+        log.message = f"{max_iterations} iterations"
+    return tangent, albedo, minnaert_k, sums
+
+
+# --------------------------------------------------------------------------
+# Starting light
+# --------------------------------------------------------------------------
+
+
+def _profile_costs(layout: PointBlocks, tangents: np.ndarray) -> np.ndarray:
+    """Brightness cost of many lights at once, each with closed-form log-space albedo and k per point.
+
+    The same score as ``estimate.profile_cost`` (k clipped to
+    ``INIT_K_RANGE``, unlit rows predicted dark), vectorised over lights.
+    """
+    lights = light_from_tangent(tangents)  # (L, 3)
+    n_lights = len(lights)
+    costs = np.zeros(n_lights)
+    for block in layout.blocks:
+        n, count = block.rows.shape
+        cos_i = (lights @ block.normal).reshape(n_lights, n, count)
+        brightness, log_cos_o = block.brightness, block.log_cos_o
+        inv_var = layout.inv_var if block.inv_var is None else block.inv_var
+        positive = brightness > 0.0
+        y = np.log(np.where(positive, brightness, 1.0)) + log_cos_o
+        usable = (cos_i > COS_INCIDENCE_FLOOR) & positive
+        x = np.log(np.where(usable, cos_i, 1.0)) + log_cos_o
+        weight = (inv_var * brightness * brightness) * usable
+        s0 = weight.sum(-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x_mean = np.einsum("lpc,lpc->lp", weight, x) / s0
+            y_mean = np.einsum("lpc,pc->lp", weight, y) / s0
+            dx = x - x_mean[..., None]
+            w_dx = weight * dx
+            sxx = np.einsum("lpc,lpc->lp", w_dx, dx)
+            sxy = np.einsum("lpc,pc->lp", w_dx, y)  # sum w dx (y - ybar) = sum w dx y
+            regular = (s0 > 0) & (sxx > 1e-12 * s0)
+            k = np.clip(np.where(regular, sxy / sxx, 1.0), *INIT_K_RANGE)
+            log_albedo = np.where(s0 > 0, y_mean - k * x_mean, 0.0)
+            model = np.exp(log_albedo[..., None] + k[..., None] * x - log_cos_o)
+        model[~usable] = 0.0
+        model -= brightness
+        model *= model
+        costs += 0.5 * (model.reshape(n_lights, -1) @ np.broadcast_to(inv_var, brightness.shape).ravel())
+    return costs
+
+
+def _grid_search(layout: PointBlocks, guess_tangent, half_width=0.8, n_grid=17, n_refine=2, batch_elements=1 << 18):
+    """Coarse-to-fine grid over tangent coordinates, as ``estimate.search_light``, scored in batches of lights.
+
+    The grid covers ``[-half_width, half_width]**2`` with ``n_grid**2``
+    nodes plus ``guess_tangent``; each refinement searches a 7x7 grid over
+    +-1 cell around the best node with a 3x finer step.
+    """
+
+    def best_of(candidates):
+        batch = max(1, batch_elements // max(layout.n_rows, 1))
+        costs = np.concatenate([_profile_costs(layout, candidates[i : i + batch]) for i in range(0, len(candidates), batch)])
+        costs = np.where(np.isfinite(costs), costs, np.inf)
+        return candidates[int(np.argmin(costs))]
+
+    offsets = np.linspace(-half_width, half_width, n_grid)
+    grid = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2)
+    best = best_of(grid if guess_tangent is None else np.vstack([guess_tangent, grid]))
+    step = 2.0 * half_width / (n_grid - 1)
+    for _ in range(n_refine):
+        offsets = np.linspace(-step, step, 7)
+        best = best_of(best + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2))
+        step /= 3.0
+    return best
+
+
+def _evenly_spaced(ids, n):
+    if ids.size <= n:
+        return ids
+    return ids[np.linspace(0, ids.size - 1, n).astype(np.int64)]
+
+
+def _lambert_guess(obs: Observations, rows):
+    """Iwano's linear fit with k = 1 on some rows: a cheap light guess (tangent coordinates), or None."""
+    if rows.size < 3:
+        return None
+    sub = Observations(obs.point_index[rows], obs.normal_cam[rows], obs.view_cam[rows], obs.brightness[rows], obs.n_points)
+    try:
+        return tangent_from_light(fit_iwano_linear(sub, 1.0).light_dir_cam)
+    except ValueError:
+        return None
+
+
+# --------------------------------------------------------------------------
+# Result
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class VarproResult(FitResult):
+    """A :class:`FitResult` with the uncertainties of :func:`fit_varpro`'s estimate.
+
+    Per point (NaN where not fitted): ``albedo_std``, ``minnaert_k_std``
+    and ``albedo_k_cov``, the marginal (light uncertainty included)
+    standard deviations and covariance. ``light_cov_tangent`` (2x2): the
+    light's covariance in tangent coordinates (``estimate.light_from_tangent``);
+    ``light_std_deg``: the RMS angular error it implies
+    (``estimate.light_std_deg``). ``noise_sigma``: the brightness noise
+    standard deviation used, given or estimated (``sigma_estimated``), NaN
+    when a per-observation sigma was given; ``reduced_chi2``: weighted sum of
+    squared residuals over the degrees of freedom (about 1 when a given
+    sigma is right). ``observation_used`` (n_obs,): rows that entered the
+    final fit (False for rejected outliers and points not fitted);
+    ``n_rejected``: outliers rejected. ``cost`` is, as for every estimator,
+    0.5 * the unweighted sum of squared brightness residuals over the rows
+    used; ``weighted_cost`` the minimised objective (with 1/sigma**2 weights
+    and the robust loss). ``stage_seconds`` and ``stage_passes``: time and
+    passes over the data per stage.
+    """
+
+    albedo_std: np.ndarray | None = None
+    minnaert_k_std: np.ndarray | None = None
+    albedo_k_cov: np.ndarray | None = None
+    light_cov_tangent: np.ndarray | None = None
+    light_std_deg: float = float("nan")
+    noise_sigma: float = float("nan")
+    sigma_estimated: bool = False
+    reduced_chi2: float = float("nan")
+    weighted_cost: float = float("nan")
+    observation_used: np.ndarray | None = None
+    n_rejected: int = 0
+    loss: str = "linear"
+    stage_seconds: dict = dataclasses.field(default_factory=dict)
+    stage_passes: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def light_tangent(self) -> np.ndarray:
+        return tangent_from_light(self.light_dir_cam)
+
+
+# --------------------------------------------------------------------------
+# The estimator
+# --------------------------------------------------------------------------
+
+
+def _inverse_variance(obs: Observations, sigma):
+    if sigma is None:
+        return 1.0
+    sigma = np.asarray(sigma, dtype=np.float64)
+    if sigma.ndim == 0:
+        if not (np.isfinite(sigma) and sigma > 0):
+            raise ValueError(f"fit_varpro: sigma must be a positive number, got {float(sigma)!r}")
+        return 1.0 / float(sigma) ** 2
+    if sigma.shape != (obs.n_obs,):
+        raise ValueError(f"fit_varpro: sigma must be a scalar or have shape ({obs.n_obs},), got {sigma.shape}")
+    if not np.all(np.isfinite(sigma) & (sigma > 0)):
+        raise ValueError("fit_varpro: every sigma must be finite and > 0")
+    return 1.0 / sigma**2
+
+
+def fit_varpro(
+    obs: Observations,
+    *,
+    sigma=None,
+    loss: str = "linear",
+    f_scale: float | None = None,
+    reject_outliers: bool = False,
+    rejection_threshold: float = 4.0,
+    max_rejection_rounds: int = 3,
+    light_init=None,
+    polish: bool = True,
+    min_observations: int = 2,
+    max_iterations: int = 30,
+    step_tol: float = 1e-6,
+    search_points: int = 2000,
+    grid_points: int = 200,
+    chunk_rows: int = CHUNK_ROWS,
+) -> VarproResult:
+    """Fit one light and a per-point albedo and Minnaert k by variable projection, then polish.
+
+    Minimises ``sum_j rho(r_j / sigma_j)`` with ``r_j = albedo_p cos_i**k_p
+    cos_o**(k_p - 1) - b_j`` (rho the square for ``loss="linear"``: weighted
+    least squares, the maximum-likelihood estimate under Gaussian noise).
+
+    Parameters
+    ----------
+    obs : Observations
+        As for ``estimate.fit_koizumi_lm``; rows may come in any order.
+    sigma : None, float or (n_obs,) array
+        Brightness noise standard deviation, one for all or per observation
+        (e.g. ``np.sqrt(noise.observation_variance(obs.brightness, sensor))``).
+        None: unknown; one sigma is estimated from the residuals (residual
+        variance over the degrees of freedom; the MAD for a robust loss)
+        and the uncertainties are scaled by it.
+    loss : {"linear", "huber", "cauchy"}
+        Robust losses act through IRLS weights in both stages.
+    f_scale : float
+        The loss threshold in units of the standardized residual ``r /
+        sigma``; defaults 1.345 (Huber) and 2.3849 (Cauchy). With ``sigma``
+        None the scale is re-estimated from the MAD of the residuals.
+    reject_outliers, rejection_threshold, max_rejection_rounds
+        After the fit, observations whose standardized residual exceeds
+        ``rejection_threshold`` times ``1.4826 * MAD`` (over the kept
+        observations) are dropped and the fit redone, until no observation
+        changes status or ``max_rejection_rounds`` rounds. Observations are
+        rejected one by one, never whole points, but a point left with
+        fewer than two is not fitted (NaN). With ``loss="linear"`` the
+        outliers are found after a Huber fit (a least-squares fit bends
+        towards them and hides them), and the kept observations are then
+        refitted by least squares.
+    light_init : None, "iwano" or (3,) array
+        None: grid search and the reduced problem on a subsample
+        (``grid_points`` and ``search_points`` points). "iwano": Iwano's
+        Lambert light on the subsample instead of the grid. A vector: that
+        light (camera frame, ``l_z < 0``).
+    polish : bool
+        Run the joint passes on the brightness residuals (True) or return
+        the log-space estimate (False; its uncertainties are still computed
+        from the brightness Jacobian).
+    max_iterations, step_tol
+        Per stage. A stage stops when its Gauss-Newton step ``delta`` has
+        ``delta^T H delta <= step_tol`` in units of the noise variance (the
+        step is far below the estimate's standard deviation), when the
+        residuals are exact to 1e-12 (noiseless data), or when no damped
+        step lowers the objective.
+    chunk_rows : int
+        Rows per chunk of a streamed pass.
+
+    Returns
+    -------
+    VarproResult
+        ``method="varpro"``; see :class:`VarproResult` for the uncertainty
+        fields. ``nfev`` counts passes over all the data; ``n_iterations``
+        the accepted and rejected steps of both stages.
+    """
+    start = time.perf_counter()
+    loss_fn = _Loss(loss, f_scale)
+    if not rejection_threshold > 0:
+        raise ValueError(f"fit_varpro: rejection_threshold must be > 0, got {rejection_threshold!r}")
+    inv_var = _inverse_variance(obs, sigma)
+    sigma_known = sigma is not None
+    layout = PointBlocks(obs, min_observations=min_observations, inv_var=inv_var, chunk_rows=chunk_rows)
+    if layout.n_points == 0 or layout.n_rows < layout.n_params:
+        raise ValueError(
+            f"fit_varpro: {layout.n_rows} usable observations of {layout.n_points} points "
+            f"cannot determine {layout.n_params} unknowns"
+        )
+    # With outlier rejection the outliers are found after a robust (Huber) fit even when the final
+    # fit is plain least squares: a least-squares fit bends towards outliers and hides them.
+    fit_loss = HUBER if reject_outliers and not loss_fn.robust else loss_fn
+    stride = max(1, layout.n_rows // MAD_SAMPLES) if (fit_loss.robust or reject_outliers) else 0
+    # Noise-scale floor in standardized units, so that noiseless data never divide by zero.
+    scale_floor = SCALE_FLOOR_RELATIVE * layout.typical_brightness
+
+    def estimate_scale():
+        """Whether the robust loss's scale comes from a MAD (sigma unknown)."""
+        return fit_loss.robust and not sigma_known
+
+    def variance_scale(sums):
+        """The noise variance in units of the weights: 1 if sigma is known, else estimated."""
+        if sigma_known:
+            return 1.0
+        dof = max(sums.n_rows - sums.n_params, 1)
+        value = sums.mad_sigma() ** 2 if fit_loss.robust else sums.chi2 / dof
+        return max(value, scale_floor**2)
+
+    def robust_scale(sums):
+        return max(sums.mad_sigma(), scale_floor) if estimate_scale() else 1.0
+
+    def step_tolerance():
+        # IRLS converges linearly: with a robust loss, stop at steps of 0.01 sigma.
+        return max(step_tol, ROBUST_STEP_TOL) if fit_loss.robust else step_tol
+
+    def solve_reduced(layout, tangent, tol, log):
+        scale = 1.0
+        if estimate_scale():  # the scale from the non-robust residuals at the start
+            scale = robust_scale(_reduced_pass(layout, tangent, fit_loss, 1.0, None, max(1, layout.n_rows // MAD_SAMPLES))[0])
+            log.passes += 1
+        return _solve_reduced(layout, tangent, fit_loss, scale, variance_scale, max_iterations, tol, log, stride)
+
+    def solve_joint(tangent, albedo, minnaert_k, valid, scale, log):
+        for _ in range(MAX_SCALE_ROUNDS):  # rounds of the robust scale (one round when it is fixed)
+            tangent, albedo, minnaert_k, sums = _solve_joint(
+                layout, tangent, albedo, minnaert_k, valid, fit_loss, scale, variance_scale, max_iterations, step_tolerance(), log, stride
+            )
+            new_scale = robust_scale(sums)
+            if not estimate_scale() or abs(new_scale - scale) <= SCALE_ROUND_CHANGE * scale:
+                break
+            scale = new_scale
+        return tangent, albedo, minnaert_k, sums
+
+    # The reduced problem only has to bring the polish close: 0.1 sigma of the light is plenty.
+    reduced_tol = max(step_tolerance(), 1e-2) if polish else step_tolerance()
+    seconds, passes = {}, {}
+
+    # -- start: grid search and the reduced problem on a subsample -------------
+    tick = time.perf_counter()
+    search_log = _SolveLog()
+    if light_init is None or (isinstance(light_init, str) and light_init == "iwano"):
+        sub_ids = _evenly_spaced(np.arange(layout.n_points), search_points)
+        grid_layout = layout.subset(_evenly_spaced(sub_ids, grid_points))
+        guess = _lambert_guess(obs, grid_layout.rows())
+        if light_init is None:
+            tangent = _grid_search(grid_layout, guess)
+        elif guess is None:
+            raise ValueError("fit_varpro: Iwano's linear fit failed on the subsample (light_init='iwano')")
+        else:
+            tangent = guess
+        if layout.n_points > sub_ids.size:
+            sub_layout = layout.subset(sub_ids)
+            tangent, _ = solve_reduced(sub_layout, tangent, step_tol, search_log)
+    elif isinstance(light_init, str):
+        raise ValueError(f"fit_varpro: light_init must be None, 'iwano' or a (3,) vector, got {light_init!r}")
+    else:
+        light = np.asarray(light_init, dtype=np.float64)
+        if light.shape != (3,) or not np.all(np.isfinite(light)):
+            raise ValueError(f"fit_varpro: light_init must be a finite (3,) vector, got {light_init!r}")
+        tangent = tangent_from_light(light / np.linalg.norm(light))
+    seconds["start"] = time.perf_counter() - tick
+    passes["start_subsample"] = search_log.passes
+
+    # -- the reduced (log-space) problem on all points --------------------------
+    tick = time.perf_counter()
+    reduced_log = _SolveLog()
+    tangent, (sums, log_albedo, minnaert_k, valid) = solve_reduced(layout, tangent, reduced_tol, reduced_log)
+    albedo = np.exp(log_albedo)
+    seconds["reduced"] = time.perf_counter() - tick
+    passes["reduced"] = reduced_log.passes
+    messages = [reduced_log.message]
+    success = reduced_log.success
+
+    # -- polish (joint, brightness residuals) and outlier rejection -------------
+    tick = time.perf_counter()
+    joint_log = _SolveLog()
+    if polish:
+        tangent, albedo, minnaert_k, sums = solve_joint(tangent, albedo, minnaert_k, valid, robust_scale(sums), joint_log)
+    else:
+        sums = _joint_pass(layout, tangent, albedo, minnaert_k, fit_loss, robust_scale(sums), stride)
+        joint_log.passes += 1
+    for _ in range(int(max_rejection_rounds) if reject_outliers else 0):
+        threshold = rejection_threshold * max(sums.mad_sigma(), scale_floor)
+        keep_rows = np.zeros(obs.n_obs, bool)
+        _keep_pass(layout, tangent, albedo, minnaert_k, threshold, keep_rows)
+        joint_log.passes += 1
+        if layout.set_keep(keep_rows) == 0 and fit_loss is loss_fn:
+            break
+        fit_loss = loss_fn  # the refits use the loss asked for (the Huber fit only found the outliers)
+        if polish:
+            tangent, albedo, minnaert_k, sums = solve_joint(tangent, albedo, minnaert_k, valid, robust_scale(sums), joint_log)
+        else:
+            tangent, (sums, log_albedo, minnaert_k, valid) = solve_reduced(layout, tangent, reduced_tol, joint_log)
+            albedo = np.exp(log_albedo)
+            sums = _joint_pass(layout, tangent, albedo, minnaert_k, fit_loss, robust_scale(sums), stride)
+            joint_log.passes += 1
+    seconds["polish"] = time.perf_counter() - tick
+    passes["polish"] = joint_log.passes
+    if polish:
+        messages.append(joint_log.message)
+        success = success and joint_log.success
+
+    # -- uncertainty from J^T W J at the estimate --------------------------------
+    tick = time.perf_counter()
+    point_valid = valid & _point_valid(sums)
+    light_block, point_blocks, couplings, _, _ = _masked_blocks(sums, point_valid)
+    light_cov, var_albedo, var_k, cov_albedo_k = arrow_covariance(light_block, point_blocks, couplings)
+    n_params_used = 2 + 2 * int(np.count_nonzero(point_valid))
+    dof = max(sums.n_rows - n_params_used, 1)
+    noise_variance = variance_scale(sums)
+    light_cov = light_cov * noise_variance
+    with np.errstate(invalid="ignore"):
+        albedo_std, k_std = np.sqrt(var_albedo * noise_variance), np.sqrt(var_k * noise_variance)
+    if sigma_known:
+        noise_sigma = float(np.sqrt(1.0 / inv_var)) if np.ndim(inv_var) == 0 else float("nan")
+    else:
+        noise_sigma = float(np.sqrt(noise_variance))
+    observation_used = layout.rows_used(obs.n_obs, point_valid)
+    seconds["uncertainty"] = time.perf_counter() - tick
+
+    def per_point(values):
+        return layout.per_point(np.where(point_valid, values, np.nan))
+
+    return VarproResult(
+        method="varpro",
+        light_dir_cam=light_from_tangent(tangent),
+        albedo=per_point(albedo),
+        minnaert_k=per_point(minnaert_k),
+        n_points_fitted=int(np.count_nonzero(point_valid)),
+        n_obs=int(np.count_nonzero(observation_used)),
+        cost=float(sums.cost),
+        n_iterations=search_log.iterations + reduced_log.iterations + joint_log.iterations,
+        nfev=reduced_log.passes + joint_log.passes,
+        success=bool(success),
+        message="; ".join(message for message in messages if message),
+        fit_seconds=time.perf_counter() - start,
+        solver="variable projection (log space) + joint Gauss-Newton polish, block-Schur (numpy, streamed)",
+        albedo_std=per_point(albedo_std),
+        minnaert_k_std=per_point(k_std),
+        albedo_k_cov=per_point(cov_albedo_k * noise_variance),
+        light_cov_tangent=light_cov,
+        light_std_deg=light_std_deg(tangent, light_cov),
+        noise_sigma=noise_sigma,
+        sigma_estimated=not sigma_known,
+        reduced_chi2=float(sums.chi2 / dof),
+        weighted_cost=float(sums.objective),
+        observation_used=observation_used,
+        n_rejected=layout.n_rejected(),
+        loss=loss_fn.name,
+        stage_seconds=seconds,
+        stage_passes=passes,
+    )

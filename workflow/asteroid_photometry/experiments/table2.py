@@ -1,0 +1,536 @@
+"""Table 2 from images alone: reconstruct, register, estimate, refine; the file-level stages.
+
+Each function reads files, calls the library (``reconstruct``, ``cloud``,
+``register``, ``quality``, ``estimate``, ``refine``) and writes its declared
+outputs; the rule scripts are shims over these.
+
+The estimators see only what images give: the sparse pycolmap model's
+points and cameras (``cloud`` turns them into an oriented cloud with
+visibility and brightness). The shape model enters only afterwards, to
+score: registration puts the cloud on the body, each point is matched to
+its closest facet, whose normal, albedo and k are the truth. The light
+direction needs no registration: it lives in the camera frame.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from asteroid_photometry import estimation
+from asteroid_photometry.core import files
+from asteroid_photometry.core.failures import (
+    check_npz,
+    check_status,
+    DataFailure,
+    OK,
+    record,
+    status_counts_line,
+    table_status,
+    write_failed_npz,
+    write_status_json,
+)
+from asteroid_photometry.estimation.registry import run_estimator
+from asteroid_photometry.evaluation import metrics, quality
+from asteroid_photometry.evaluation.truth import true_poses, truth_for_facets
+from asteroid_photometry.from_images import cloud as cloud_lib, reconstruct, refine, register
+from asteroid_photometry.world import mesh
+from asteroid_photometry.world.cameras import Intrinsics
+from asteroid_photometry.world.images import read_rendered_images
+from asteroid_photometry.world.shape import load_shape_npz
+
+log = logging.getLogger(__name__)
+
+PAPER_TABLE2 = {"light_deg_est": 4.21, "light_deg_true": 0.0, "albedo_est": 0.578, "albedo_true": 0.53, "k_est": 0.771, "k_true": 0.7}
+
+
+MAX_MAPPER_SEEDS = 4
+#: Fewer cloud points seen often enough than this is no model of the body (nor enough to register).
+MIN_CLOUD_POINTS = 30
+STATUS_FILE = "status.json"
+
+#: The reconstruction keys (config key ``reconstruction``) each Table 2 stage reads, and no other: the rules pass
+#: each stage only its own (:func:`stage_settings`), so a key read here but not declared fails loudly.
+STAGE_KEYS = {
+    "reconstruct": (
+        "intrinsics", "camera_position_sigma_m", "tie_point_sigma_px", "prior_seed", "min_pose_inliers", "min_pose_inlier_ratio",
+        "min_track",
+    ),
+    "register": ("min_track",),
+    "cloud": ("min_observations_per_point", "min_cos_emission", "purity_tolerance"),
+    "refine": (
+        "min_observations_per_point", "min_cos_emission", "purity_tolerance", "refine_candidates", "refine_max_offset_px",
+        "refine_offset_steps", "refine_purity_tolerance", "refine_max_residual",
+    ),
+}
+
+
+def stage_settings(reconstruction: dict, stage: str) -> dict:
+    """The keys of the config's ``reconstruction`` entry that ``stage`` reads (:data:`STAGE_KEYS`)."""
+    return {key: reconstruction[key] for key in STAGE_KEYS[stage]}
+
+
+def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3) -> float:
+    """Fraction of the cloud's camera-facing normals that point away from its centroid.
+
+    About 1 for a sound model of a (nearly) star-shaped body; near 0 for the
+    depth-reversed twin that narrow-field structure from motion of a turning
+    body can land in (the cameras then come out turned by 180 degrees and the
+    surface is seen from inside).
+    """
+    oriented = oriented_cloud_of(recon, min_track)
+    outward = np.einsum("ij,ij->i", oriented.normals, oriented.points - oriented.points.mean(axis=0)) > 0
+    return float(outward.mean())
+
+
+def oriented_cloud_of(recon: reconstruct.SparseReconstruction, min_track: int) -> cloud_lib.OrientedCloud:
+    """The reconstruction's oriented cloud (``cloud.oriented_cloud``); :class:`DataFailure` if too few points are seen often enough."""
+    _, xyz = recon.points3d()
+    tracks = recon.tracks()
+    n_tracked = int(np.count_nonzero(np.bincount(tracks["point"], minlength=len(xyz)) >= min_track))
+    if n_tracked < MIN_CLOUD_POINTS:
+        raise DataFailure(
+            f"the model of {recon.report.n_images_registered} images has {n_tracked} points seen in at least {min_track} images "
+            f"(at least {MIN_CLOUD_POINTS} needed)"
+        )
+    return cloud_lib.oriented_cloud(xyz, tracks["point"], tracks["image"], recon.camera_centres(), min_track=min_track)
+
+
+def read_reconstruction(reconstruction_dir) -> reconstruct.SparseReconstruction:
+    """The output of ``reconstruct_stage``; raises its recorded :class:`DataFailure` if it failed."""
+    status_path = Path(reconstruction_dir) / STATUS_FILE
+    if status_path.exists():
+        check_status(json.loads(status_path.read_text()), status_path)
+    return reconstruct.SparseReconstruction.read(reconstruction_dir)
+
+
+def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
+    """Sparse reconstruction of one set, with or without navigation position priors.
+
+    A model whose surface faces inwards (``outward_fraction`` below 0.5) is
+    the depth-reversed twin, not the body: the mapper is run again with the
+    next seed, up to ``MAX_MAPPER_SEEDS`` times, and the attempts are logged
+    and recorded in the report's settings. ``status.json`` in ``out_dir``
+    says ``ok``, or ``failed`` with the reason: too few images registered
+    (``reconstruct.MIN_REGISTERED_IMAGES``), fewer than ``MIN_CLOUD_POINTS``
+    points, a depth-reversed model on every seed, a blank set.
+    """
+    out_dir = Path(out_dir)
+    try:
+        _reconstruct(render_dir, out_dir, use_priors, settings, threads)
+    except DataFailure as failure:
+        part = files.partial_directory(out_dir)
+        write_status_json(part / STATUS_FILE, record("reconstruct", failure))
+        files.move_into_place(part, out_dir)
+
+
+def _reconstruct(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
+    frames, images = read_rendered_images(render_dir)  # checked before any work
+    poses = true_poses(frames)  # the navigation priors are simulated from them; the report scores against them
+    attempts = []
+    part = files.partial_directory(out_dir)  # renamed to out_dir when complete
+    for seed in range(MAX_MAPPER_SEEDS):
+        result = reconstruct.reconstruct_images(
+            images, Intrinsics(**frames["intrinsics"]), part / "work", true_body_to_camera=poses,
+            intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
+            camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
+            prior_seed=settings["prior_seed"], num_threads=threads, seed=seed,
+            features=reconstruct.FeatureOptions(
+                min_pose_inliers=settings["min_pose_inliers"], min_pose_inlier_ratio=settings["min_pose_inlier_ratio"],
+            ),
+        )
+        n_registered = result.report.n_images_registered
+        fraction = outward_fraction(result, settings["min_track"])
+        attempts.append({"seed": seed, "outward_fraction": fraction, "n_images_registered": n_registered})
+        if fraction >= 0.5:
+            break
+        log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
+    else:
+        raise DataFailure(
+            f"the model is depth-reversed (seen from inside) on all {MAX_MAPPER_SEEDS} mapper seeds: outward fractions "
+            + ", ".join(f"{attempt['outward_fraction']:.2f}" for attempt in attempts)
+        )
+    result.report.settings["mapper_attempts"] = attempts
+    result.write(part)
+    write_status_json(part / STATUS_FILE)
+    files.move_into_place(part, out_dir)
+    log.info("reconstruction: %s", json.dumps(result.report.to_dict()))
+
+
+def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_json) -> None:
+    """The oriented cloud of a reconstruction, registered to the shape model and scored.
+
+    A failed registration (``RegistrationResult.failure_reason``), or a failed
+    reconstruction passed on, is written as ``status: failed`` with the
+    reason: its transform is wrong, and nothing is scored through it.
+    """
+    try:
+        recon = read_reconstruction(reconstruction_dir)
+        shape = load_shape_npz(shape_npz)
+        oriented = oriented_cloud_of(recon, settings["min_track"])
+        in_body_frame = recon.report.world_frame == "body"
+        result = register.register_to_shape(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], estimate_scale=not in_body_frame)
+    except DataFailure as failure:
+        reason = record("register_cloud", failure)
+        write_failed_npz(out_npz, reason)
+        write_status_json(out_json, reason, registration_ok=False)
+        return
+    summary = {
+        "registration_ok": bool(result.success),
+        "registration_seconds": float(result.seconds_global + result.seconds_icp),
+        "registration_rms_rel": float(result.rms_distance_rel),
+        "registration_scale": float(result.scale),
+        "registration_fitness": float(result.fitness),
+        "registration_ambiguity": float(result.ambiguity),
+        "n_cloud_points": int(len(oriented.points)),
+    }
+    if not result.success:
+        reason = record("register_cloud", DataFailure(result.failure_reason))
+        write_failed_npz(out_npz, reason)
+        write_status_json(out_json, reason, **summary)
+        return
+    scores = quality.reconstruction_quality(oriented.points, oriented.normals, shape["vertices_m"], shape["faces"], transform=result.transform)
+    files.savez(out_npz, points=oriented.points, normals=oriented.normals, track_length=oriented.track_length, transform=result.transform)
+    summary = {
+        "status": OK,
+        **summary,
+        "accuracy_rel_median": scores.accuracy_median_rel,
+        "accuracy_m_median": scores.accuracy_median_m,
+        "completeness": scores.completeness,
+        "normal_err_deg_median": scores.normal_error_median_deg,
+    }
+    files.write_json(out_json, summary)
+    log.info("registration and quality: %s", summary)
+
+
+def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dict, out_npz) -> None:
+    """The photometric refinement of one reconstruction (``refine.refine_by_pure_samples``), from images and cloud alone.
+
+    The light it holds fixed, and the albedo and k it starts from, are the
+    paper's estimator's on the cloud's bilinear samples; at the end it fits
+    the light again to the pure samples, with one k for the body
+    (``PureSampleCloud.refined_light_dir_cam``). Only the cloud's
+    points and normals are read from the registration file: its transform
+    to the shape model is not used; but a set whose registration failed
+    cannot be scored, and is passed on (``status: failed``) unrefined.
+    """
+    try:
+        pure = _refine(registration_npz, reconstruction_dir, render_dir, settings)
+    except DataFailure as failure:
+        write_failed_npz(out_npz, record("refine_cloud", failure))
+        return
+    pure.save(out_npz)
+    log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
+
+
+def _refine(registration_npz, reconstruction_dir, render_dir, settings: dict) -> refine.PureSampleCloud:
+    with np.load(registration_npz) as data:
+        check_npz(data, registration_npz)
+        oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+    recon = read_reconstruction(reconstruction_dir)
+    _, images = read_rendered_images(render_dir)
+    poses = recon.body_to_camera()
+    surface = cloud_lib.poisson_surface(oriented)
+    obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
+    require_cloud_observations(obs, settings, "the cloud")
+    start = estimation.fit_koizumi_lm(obs)
+    fitted = np.isfinite(start.albedo) & np.isfinite(start.minnaert_k)
+    albedo, minnaert_k = float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
+    pure = refine.refine_by_pure_samples(
+        surface, poses, recon.intrinsics(), images, start.light_dir_cam, albedo, minnaert_k,
+        n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"], offset_steps=settings["refine_offset_steps"],
+        purity_tolerance=settings["refine_purity_tolerance"], max_residual=settings["refine_max_residual"],
+        min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
+        axis=refine.spin_axis(list(recon.camera_centres().values())),
+    )
+    if pure.observations.n_obs < 10 * settings["min_observations_per_point"] or not np.all(np.isfinite(pure.refined_light_dir_cam)):
+        raise DataFailure(
+            f"the refinement kept {len(pure.points)} of {pure.n_candidates} candidate points "
+            f"({pure.observations.n_obs} pure samples); too few to fit (more with a larger reconstruction.refine_candidates, "
+            f"refine_purity_tolerance or refine_max_residual)"
+        )
+    return pure
+
+
+def require_cloud_observations(obs, settings: dict, what: str) -> None:
+    """:class:`DataFailure` unless ``obs`` has at least ten points' worth of observations (the fits' own minimum)."""
+    if obs.n_obs < 10 * settings["min_observations_per_point"]:
+        raise DataFailure(f"{what} gives only {obs.n_obs} usable observations of {int(np.count_nonzero(obs.observations_per_point))} points; nothing to fit")
+
+
+def cloud_observations_of(oriented, recon, images, settings: dict, surface=None):
+    """``cloud.cloud_observations`` of a reconstruction's cloud with the config's settings."""
+    return cloud_lib.cloud_observations(
+        oriented, recon.body_to_camera(), recon.intrinsics(), images, min_cos_emission=settings["min_cos_emission"],
+        min_observations=settings["min_observations_per_point"], purity_tolerance=settings.get("purity_tolerance"), surface=surface,
+    )
+
+
+#: A cloud point whose fitted Minnaert k leaves this range (physical values
+#: lie near 0.5 to 1.2) has no fit worth scoring: its normal or its samples
+#: are far off, and one such point (k = 4.5, albedo 1e2 to 1e8 from a few
+#: grazing samples) can carry a set's mean albedo error to any value. Such
+#: points are left out, and counted in the log and in n_points.
+PLAUSIBLE_K = (0.0, 3.0)
+
+
+def plausible_points(result: estimation.FitResult) -> estimation.FitResult:
+    """``result`` with the points of implausible k marked unfitted (NaN), for scoring."""
+    low, high = PLAUSIBLE_K
+    implausible = np.isfinite(result.minnaert_k) & ((result.minnaert_k < low) | (result.minnaert_k > high))
+    if not implausible.any():
+        return result
+    log.warning("%s: %d of %d fitted points have k outside [%g, %g] and are left out", result.method, int(implausible.sum()), result.n_points_fitted, low, high)
+    return replace(
+        result, albedo=np.where(implausible, np.nan, result.albedo), minnaert_k=np.where(implausible, np.nan, result.minnaert_k),
+        n_points_fitted=result.n_points_fitted - int(implausible.sum()),
+    )
+
+
+ORACLE_COLUMNS = ("light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse")
+
+
+def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: metrics.Truth, shape: dict, frames: dict, recon, images, settings: dict, known_k: float) -> dict:
+    """Where the cloud's error comes from: the same estimator with the truth put in, one part at a time.
+
+    ``surface_body`` and ``facets``: each registered point's closest point on
+    the true surface (body frame) and its facet, whose values ``truth`` holds.
+    ``true_normals``: the reconstructed points and cameras, each point's normal
+    replaced by its closest facet's. ``true_surface``: each point also moved
+    to its closest point on the true surface, still seen through the
+    reconstructed cameras. ``true_cameras``: those surface points seen through
+    the true cameras as well (the registered images only); what is left then
+    is the sampling itself, a point anywhere on a facet of about two pixels
+    against the pure pixels of Table 1. All need the registration
+    (``transform``: cloud frame to body frame).
+    """
+    poses = recon.body_to_camera()
+    all_true_poses = true_poses(frames)
+    true_cameras = {index: all_true_poses[index] for index in poses}
+    body_to_cloud = np.linalg.inv(transform)
+    normals_body = shape["normals"][facets]
+    row = {}
+    # (name, points in the frame of the cameras, those cameras, their intrinsics, body to that frame)
+    for name, points, cameras, intrinsics, body_to_frame in (
+        ("true_normals", oriented.points, poses, recon.intrinsics(), body_to_cloud),
+        ("true_surface", register.transform_points(body_to_cloud, surface_body), poses, recon.intrinsics(), body_to_cloud),
+        ("true_cameras", surface_body, true_cameras, Intrinsics(**frames["intrinsics"]), np.eye(4)),
+    ):
+        swapped = cloud_lib.OrientedCloud(points, mesh.transform_normals(body_to_frame, normals_body), oriented.track_length)
+        obs, _ = cloud_lib.cloud_observations(
+            swapped, cameras, intrinsics, images, min_cos_emission=settings["min_cos_emission"], min_observations=settings["min_observations_per_point"],
+            purity_tolerance=settings.get("purity_tolerance"),
+        )
+        fitted = metrics.summary_row("", plausible_points(run_estimator(obs, method, known_k=known_k, robust=True)), truth)
+        row.update({f"{key}_{name}": fitted[key] for key in ORACLE_COLUMNS})
+    return row
+
+
+#: Robust spread of the per-point k after refinement above which the one-k light is flagged in the log.
+#: On the 16 uniform sets it is 0.0005 to 0.0016 with priors and 0.003 to 0.009 without (full run); k
+#: spread uniformly by +-0.05 has a standard deviation of 0.029.
+K_SPREAD_WARNING = 0.015
+
+
+def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method: str, set_id: str, priors: str, settings: dict, out_json, out_npz) -> None:
+    """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``); scored against the shape model.
+
+    A set that failed here or before (reconstruction, registration,
+    refinement) gets a row with its ``status`` (the reason), what is known
+    of its reconstruction and registration, and no estimates.
+    """
+    try:
+        row, errors = _fit_cloud(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method, set_id, priors, settings)
+    except DataFailure as failure:
+        reason = record("fit_cloud", failure)
+        row = {"set_id": set_id, "priors": priors, "method": method, "status": table_status(reason)}
+        report_path = Path(reconstruction_dir) / "report.json"
+        if report_path.exists():
+            report = json.loads(report_path.read_text())
+            row.update(n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"])
+        registration = json.loads(Path(registration_json).read_text())
+        row.update({key: value for key, value in registration.items() if key not in ("status", "reason")})
+        write_failed_npz(out_npz, reason)
+        files.write_json(out_json, row)
+        return
+    files.write_json(out_json, row)
+    files.savez(out_npz, **errors)
+    log.info("table 2 row: %s", json.dumps(row))
+
+
+def _fit_cloud(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
+    registration = json.loads(Path(registration_json).read_text())
+    check_status(registration, registration_json)  # a failed registration's transform is wrong: nothing is scored through it
+    with np.load(refined_npz) as data:
+        check_npz(data, refined_npz)
+    recon = read_reconstruction(reconstruction_dir)
+    shape = load_shape_npz(shape_npz)
+    with np.load(registration_npz) as data:
+        check_npz(data, registration_npz)
+        oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+        transform = data["transform"]
+    frames, images = read_rendered_images(render_dir)
+    obs, _ = cloud_observations_of(oriented, recon, images, settings)
+    require_cloud_observations(obs, settings, f"the reconstruction ({recon.report.n_images_registered} images, {len(oriented.points)} cloud points)")
+    query = register.SurfaceQuery(shape["vertices_m"], shape["faces"])
+    points_body = register.transform_points(transform, oriented.points)
+    surface_body, facets = query.closest(points_body)
+    albedo_true, k_true, normals_true, light_true = truth_for_facets(facets, shape, frames, render_dir)
+    truth = metrics.Truth(light_dir_cam=light_true, albedo=albedo_true, minnaert_k=k_true)
+    spin_axis_cam = true_poses(frames)[0, :3, :3] @ [0.0, 0.0, 1.0]
+
+    known_k = float(np.median(k_true))  # Iwano's baseline is given k
+    report = json.loads((Path(reconstruction_dir) / "report.json").read_text())
+    before = plausible_points(run_estimator(obs, method, known_k=known_k, robust=True))
+    row = metrics.summary_row(set_id, before, truth)
+
+    # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
+    pure = refine.PureSampleCloud.load(refined_npz)
+    tick = time.perf_counter()
+    if method == "koizumi_lm":
+        # Two steps: the refinement's light (one k for the body), then the paper's per-point albedo and k under it.
+        # The paper's joint fit, light free, is kept beside it (columns *_refined_joint).
+        joint = plausible_points(estimation.fit_koizumi_lm(pure.observations, light_init=pure.light_dir_cam))
+        after = estimation.fit_koizumi_lm(pure.observations, light_init=pure.refined_light_dir_cam, hold_light=True)
+    else:
+        joint, after = None, run_estimator(pure.observations, method, known_k=known_k, robust=True)
+    refit_seconds = time.perf_counter() - tick
+    after = plausible_points(after)
+    joint = after if joint is None else joint
+    refined_body = register.transform_points(transform, pure.points)
+    refined_surface, refined_facets = query.closest(refined_body)
+    albedo_true_refined, k_true_refined, normals_true_refined, _ = truth_for_facets(refined_facets, shape, frames, render_dir)
+    after_row = metrics.summary_row(set_id, after, metrics.Truth(light_dir_cam=light_true, albedo=albedo_true_refined, minnaert_k=k_true_refined))
+    normals_before = quality.normal_errors_deg(mesh.transform_normals(transform, oriented.normals), normals_true)
+    normals_after = quality.normal_errors_deg(mesh.transform_normals(transform, pure.normals), normals_true_refined)
+    row.update({f"{key}_refined": after_row[key] for key in ("light_deg_est", "light_deg_err", "light_dir_err_deg", "albedo_est", "albedo_err", "albedo_rmse", "k_est", "k_err", "k_rmse", "n_points", "n_obs")})
+    joint_row = metrics.summary_row(set_id, joint, metrics.Truth(light_dir_cam=light_true, albedo=albedo_true_refined, minnaert_k=k_true_refined))
+    row.update({f"{key}_refined_joint": joint_row[key] for key in ("light_dir_err_deg", "albedo_err", "k_err")})
+    row["refined_light_source"] = "refinement" if method == "koizumi_lm" else "estimator"
+    row["refinement_light_err_deg"] = float(estimation.angle_between_deg(pure.refined_light_dir_cam, light_true))
+    row["refinement_k_err"] = pure.refined_minnaert_k - float(np.median(k_true_refined))
+    # The check on the one-k light that needs no truth: the per-point k's robust spread under it.
+    fitted_k = after.minnaert_k[np.isfinite(after.minnaert_k)]
+    row["k_spread_refined"] = float(1.4826 * np.median(np.abs(fitted_k - np.median(fitted_k)))) if fitted_k.size else float("nan")
+    if method == "koizumi_lm" and row["k_spread_refined"] > K_SPREAD_WARNING:
+        log.warning(
+            "set %s, priors %s: the per-point k after refinement spreads by %.3f (robust std), more than %g: the refinement's light "
+            "assumes one k for the body, and on a body whose k varies it is off by up to degrees (README, Table 2 item 7)",
+            set_id, priors, row["k_spread_refined"], K_SPREAD_WARNING,
+        )
+    for suffix, result in (("", before), ("_refined", after)):
+        azimuth, elevation = metrics.light_error_components_deg(result.light_dir_cam, light_true, spin_axis_cam)
+        row[f"light_err_azimuth_deg{suffix}"], row[f"light_err_elevation_deg{suffix}"] = azimuth, elevation
+    row.update(
+        priors=priors,
+        normal_err_deg_median=float(np.nanmedian(normals_before)),
+        normal_err_deg_median_refined=float(np.nanmedian(normals_after)),
+        refit_seconds=refit_seconds,
+        refine_candidates=pure.n_candidates,
+        refine_accepted=int(len(pure.points)),
+        refine_distance_m_median=float(np.median(np.linalg.norm(refined_surface - refined_body, axis=1))),
+    )
+    row.update(
+        n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"],
+        cam_pos_rms_m=report.get("cam_pos_rms_m"), cam_pos_true_rms_m=report.get("cam_pos_true_rms_m"), prior_overfit=report.get("prior_overfit"),
+    )
+    row.update(registration)
+    row["status"] = table_status()
+    row.update(oracle_rows(method, oriented, transform, surface_body, facets, truth, shape, frames, recon, images, settings, known_k))
+    errors = dict(
+        points_body=points_body, albedo_error=before.albedo - albedo_true, k_error=before.minnaert_k - k_true,
+        normal_error_deg=normals_before, points_body_refined=refined_body,
+        albedo_error_refined=after.albedo - albedo_true_refined, k_error_refined=after.minnaert_k - k_true_refined,
+        normal_error_deg_refined=normals_after,
+    )
+    return row, errors
+
+
+TABLE2_LEAD = ["set_id", "priors", "method", "status"]
+
+
+def write_table2(summary_paths, out_csv, out_markdown) -> None:
+    rows = [{"status": OK, **json.loads(Path(path).read_text())} for path in summary_paths]
+    table = metrics.without_timings(pd.DataFrame(rows))
+    table = table[TABLE2_LEAD + [c for c in table if c not in TABLE2_LEAD]].sort_values(TABLE2_LEAD[:3], kind="stable")
+    files.write_csv(table, out_csv)
+    files.write_text(out_markdown, table2_markdown(table))
+    log.info("Table 2: %s", status_counts_line(table, "rows"))
+
+
+def table2_markdown(table: pd.DataFrame) -> str:
+    paper = PAPER_TABLE2
+    lines = [
+        "# Table 2: from images alone", "",
+        "Sparse pycolmap reconstruction of each set (with and without navigation position priors), an oriented cloud "
+        "with visibility, the estimators, then the photometric refinement (points moved to where the images show their "
+        "samples pure, normals turned about the spin axis to fit them) and the estimators again. After refinement the paper's "
+        "estimator (koizumi_lm) takes the refinement's light, fitted to the pure samples with one Minnaert k for the body, and fits "
+        "each point's albedo and k under it (`light err ref.`); its own joint fit, light free, is `light err joint`. The other "
+        "estimators fit their own light. Scored against the shape model after registration. The paper's Table 2 (real Hayabusa images, Bundler + PMVS2): light "
+        f"{paper['light_deg_est']} deg (reference about 0), albedo {paper['albedo_est']} (reference {paper['albedo_true']}), "
+        f"k {paper['k_est']} (reference about {paper['k_true']}).", "",
+    ]
+    columns = [
+        ("set_id", "set", None), ("status", "status", None), ("n_images_registered", "images", None), ("reproj_rms_px", "reproj px", 2),
+        ("cam_pos_rms_m", "cam-prior m", 2), ("prior_overfit", "overfit", None), ("registration_ok", "reg ok", None),
+        ("registration_rms_rel", "reg RMS rel", 4), ("accuracy_rel_median", "acc rel", 4), ("completeness", "compl.", 3),
+        ("n_points", "points", None), ("n_points_refined", "points ref.", None), ("light_dir_err_deg", "light err", 3),
+        ("light_dir_err_deg_refined", "light err ref.", 3), ("light_err_elevation_deg_refined", "of it elev. ref.", 3),
+        ("light_dir_err_deg_refined_joint", "light err joint", 3),
+        ("albedo_err", "albedo err", 4), ("albedo_err_refined", "albedo err ref.", 4), ("k_err", "k err", 4),
+        ("k_err_refined", "k err ref.", 4), ("normal_err_deg_median", "normal err", 1), ("normal_err_deg_median_refined", "normal err ref.", 1),
+    ]
+    for (priors, method), group in table.groupby(["priors", "method"], sort=True):
+        lines += [f"## priors {priors}, {method}", "", status_counts_line(group, keys=("set_id",)), ""]
+        lines += ["| " + " | ".join(title for _, title, _ in columns) + " |", "|" + "---|" * len(columns)]
+        for _, row in group.iterrows():
+            cells = []
+            for key, _, digits in columns:
+                value = row.get(key)
+                cells.append(metrics.text_cell(value) if digits is None or pd.isna(value) else f"{value:.{digits}f}")
+            lines.append("| " + " | ".join(cells) + " |")
+        worst = {key: group[key].abs().max() for key in ("light_dir_err_deg_refined", "albedo_err_refined", "k_err_refined") if key in group}
+        lines += ["", "Worst after refinement: " + ", ".join(f"{k} {v:.3g}" for k, v in worst.items()) + f"; registered {int(group.registration_ok.fillna(False).astype(bool).sum())}/{len(group)}", ""]
+    lines += error_decomposition_markdown(table)
+    return "\n".join(lines)
+
+
+def error_decomposition_markdown(table: pd.DataFrame) -> list[str]:
+    """Median absolute errors over the registered sets as the truth is put in, one part at a time (:func:`oracle_rows`)."""
+    if "k_err_true_cameras" not in table:
+        return []
+    lines = ["## Where the error comes from", "",
+             "Median over the registered sets of the absolute errors, with the truth put in one part at a time "
+             "(same images, same estimator; `_true_*` columns of table2.csv).", ""]
+    for (priors, method), group in table[table.registration_ok.fillna(False).astype(bool) & (table.status == OK)].groupby(["priors", "method"], sort=True):
+        lines += [f"### priors {priors}, {method}", "", "| | light err (deg) | albedo err | k err |", "|---|---|---|---|"]
+        for suffix, title in metrics.TABLE2_STAGES:
+            cells = [f"{group[f'{key}{suffix}'].abs().median():.4g}" for key in ("light_dir_err_deg", "albedo_err", "k_err")]
+            lines.append(f"| {title} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
+def write_table2_plots(table_csv, cloud_errors_npz, method: str, title: str, out_stages_png, out_cloud_png) -> None:
+    """Table 2's figures: errors from cloud to truth per set, and one set's cloud coloured by its per-point errors."""
+    from asteroid_photometry.evaluation import plots
+
+    plots.plot_table2_stages(pd.read_csv(table_csv), method, out_stages_png)
+    with np.load(cloud_errors_npz) as data:
+        if "status" in data.files:
+            plots.plot_message(f"{title}\n\nno cloud: {data['reason']}", out_cloud_png)
+            return
+        # The refinement moves the samples: the refined errors belong to other points.
+        before, after = data["points_body"], data["points_body_refined"]
+        values = {
+            "k error": (before, data["k_error"]), "refined k error": (after, data["k_error_refined"]),
+            "normal error (deg)": (before, data["normal_error_deg"]), "refined normal error (deg)": (after, data["normal_error_deg_refined"]),
+        }
+    plots.plot_values_on_body(values, title, out_cloud_png)

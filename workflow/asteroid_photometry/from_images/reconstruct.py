@@ -1,0 +1,847 @@
+"""Sparse reconstruction of one rendered set with pycolmap, with navigation position priors.
+
+Where it sits: after ``render`` and before a dense cloud or brightness sampling
+through *reconstructed* cameras. The ground-truth path of the workflow uses the
+known poses and the shape model; this module instead recovers the cameras and a
+sparse point cloud from the set's own images, as a mission would, with the
+spacecraft's navigation solution (camera positions in the body frame, a few
+metres accurate) as priors in bundle adjustment.
+
+Steps (:func:`reconstruct_images`):
+
+1. **Images.** The linear float images are mapped to 8-bit grayscale PNGs with
+   one monotone tone curve for the whole set (:func:`tone_map`), so a surface
+   patch keeps its grey level from image to image.
+2. **Features and matches.** COLMAP SIFT on the CPU; one shared ``PINHOLE``
+   camera built from the known intrinsics; exhaustive matching (36 images,
+   630 pairs: the cheapest way to close the loop, the body turns 10 degrees per
+   image and comes back to the start) with geometric verification.
+3. **Incremental mapping** (``pycolmap.incremental_mapping``). With priors on,
+   the pose priors are in the database and the mapper's global bundle
+   adjustments are pose-prior bundle adjustments, so the model is built in
+   the body frame at metric scale; with priors off it lives in an arbitrary
+   similarity frame.
+4. **A final bundle adjustment** over the largest model with the weights of
+   the stated accuracies (:func:`bundle_adjust`), plain least squares
+   (no robust loss), intrinsics held or refined as asked.
+5. **Report** (:class:`ReconstructionReport`): images registered, points,
+   reprojection RMS, camera-position residuals against the priors and errors
+   against the truth, and the over-fitting diagnostic.
+
+Weighting. Photogrammetry packages such as Metashape minimise
+``sum (r_px / sigma_tie_px)^2 + sum |c - c_prior|^2 / sigma_cam_m^2`` (tie
+point accuracy in pixels, camera accuracy in metres). COLMAP's reprojection
+residuals are in pixels with unit weight and its position-prior residuals are
+whitened by the prior covariance, so multiplying the whole cost by
+``sigma_tie_px^2`` gives exactly COLMAP's cost with the prior covariance
+``(sigma_cam_m / sigma_tie_px)^2 * I``: that is what is written to the
+database and given to the final adjustment.
+
+Over-fitting diagnostic. ``cam_pos_rms_m`` is the RMS over the registered
+images of the 3-D distance between the adjusted camera centre and its prior
+(Metashape's "total error"). If the tie points alone fixed the shape of the
+camera path, the priors would only fix the 7 similarity degrees of freedom and
+the residuals would be the navigation noise itself, with expected RMS
+``sigma * sqrt(3 - 7 / n)`` for n images (``cam_pos_rms_expected_m``). Priors
+that dominate pull the cameras onto themselves and the RMS falls below that.
+``prior_overfit`` is raised when ``cam_pos_rms_m < overfit_ratio *
+cam_pos_rms_expected_m``, ``overfit_ratio = 0.5`` by default. Why 0.5: if the
+priors alone set one of the three axes of every camera the ratio is about
+0.82, two axes 0.58, all three 0; below 0.5 the priors set the cameras in
+every direction, which is "clearly below the stated accuracy".
+
+Tone curve: ``linear`` (the set's 99.9th percentile of lit pixels -> 255),
+chosen by measurement on ``light10_albedo0.7_k0.8``, priors off, default SIFT:
+
+=========  =================  ==========  ======  ============  ==================
+curve      keypoints / image  registered  points  reproj (px)   cameras vs truth
+=========  =================  ==========  ======  ============  ==================
+linear     520                36 / 36     1520    0.45          24.3 m, 0.33 deg
+sqrt       317                15 / 36     402     0.49          36 m (15 images)
+log        94                 no model
+=========  =================  ==========  ======  ============  ==================
+
+The brief expected a curve that lifts the dark terminator, but at phase 0 and
+10 degrees there is almost no terminator: Itokawa's texture lies in the
+bright half (lit pixels 0.25-0.70 of a 0.70 maximum), and compressive curves
+flatten it. On ``light0_albedo0.7_k0.8`` sqrt registered 13 of 36 images,
+linear all 36. Also tried and dropped: set-wide histogram equalisation of the
+lit pixels (2119 points, but cameras 27 m to 115 m from the truth depending on
+the seed) and a square curve (2026 points, 32.5 m).
+
+Feature settings: COLMAP's defaults gave the best cameras, every change gave
+more points but worse poses (same set, priors off; points, reprojection RMS,
+camera RMS vs truth): peak threshold 0.002: 1946, 0.46 px, 28.5 m; upright:
+1932, 0.62 px, 41.9 m; domain-size pooling: 1745, 0.58 px, 68 m; guided
+matching: 1977, 0.67 px, 45.9 m. :class:`FeatureOptions` keeps the switches.
+The mapper's registration thresholds are lowered (15 inliers, 10 %; config
+keys ``reconstruction.min_pose_inliers`` and ``min_pose_inlier_ratio``): the
+k = 0.7 sets give ~400 features per image and COLMAP's 30 inliers left only
+16-20 of their 36 images registered.
+
+Measured (2-core machine, fixed intrinsics, seed 0, 36 images of 512 px,
+camera 5 km away, 8 degree field of view; "vs truth" is after a similarity
+alignment when priors are off):
+
+=================  =========  ======  ======  ======  ===========  =====  ========  ========  ====
+set                sigma (m)  images  points  reproj  cam-prior    ratio  overfit   vs truth  s
+=================  =========  ======  ======  ======  ===========  =====  ========  ========  ====
+light10 a0.7 k0.8  1          36      1523    0.445   0.096 m      0.057  yes       1.64 m    15
+light10 a0.7 k0.8  off        36      1520    0.447                                 24.3 m    18
+light0 a0.7 k0.8   1          36      1377    0.448   0.136 m      0.081  yes       1.65 m    20
+light0 a0.7 k0.8   off        36      1369    0.451                                 38.4 m    20
+light10, sweep     10         36      1526    0.442   8.5 m        0.51   no        12.1 m    18
+light10, sweep     30         36      1524    0.449   39 m         0.78   no        23.1 m    22
+light10, sweep     100        36      1525    0.437   154 m        0.92   no        53.6 m    16
+=================  =========  ======  ======  ======  ===========  =====  ========  ========  ====
+
+(tie-point accuracy 1 px; the priors' own error is 1.66 sigma RMS; camera
+rotation errors 0.14 deg with 1 m priors, 0.33 / 0.53 deg without; with 1 m
+priors the sparse points lie a median 4.5 m / 3.2 m from the shape model's
+surface, 90 % within 8.6 m / 6.9 m, with single strays up to 1.4 km: filter
+before use.) The
+diagnostic reads this geometry correctly: from 5 km with an 8 degree field of
+view the tie points place a camera only to some 20-40 m (mostly across the line
+of sight: a view-direction error of 0.2-0.3 degrees changes the image by
+hundredths of a pixel), so 1 m navigation priors dominate and the cameras sit
+on them (ratio 0.06, flagged; the adjusted cameras are no better than the
+navigation, 1.64 m against 1.66 m). With a stated tie-point accuracy of 0.3 px
+(the measured per-axis scatter) the ratio is 0.49, still flagged. Priors of
+10 m or more leave the tie points in charge (not flagged), and the fused
+cameras beat both sources (12.1 m against 16.6 m navigation and 24 m images).
+
+``intrinsics="refine"`` frees the focal lengths in the final adjustment only.
+The field of view is too narrow to separate focal length from distance and
+size: with 1 m priors it converged to f = 3900 px (true 3561 px) at unchanged
+reprojection RMS, so the model came out about 9 % too small; without priors to
+4690 px. Keep ``"fixed"`` unless the intrinsics are really in doubt.
+
+Frames follow :mod:`asteroid_photometry`: OpenCV/COLMAP camera frame, metres,
+pixel corner at (0, 0) (COLMAP's SIFT keypoints use the same convention), and
+``body_to_camera`` is COLMAP's ``cam_from_world`` when the world is the body
+frame.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from asteroid_photometry.core import files
+from asteroid_photometry.world.cameras import camera_centres_body, Intrinsics
+
+log = logging.getLogger(__name__)
+
+#: Robust maximum of a set: this percentile of the lit (positive) pixels of all images.
+REFERENCE_PERCENTILE = 99.9
+
+#: Tone curves from ``x`` (linear brightness over the set's robust maximum, clipped to [0, 1]) to [0, 1].
+TONE_CURVES = {
+    "linear": lambda x: x,
+    "sqrt": np.sqrt,
+    "log": lambda x: np.log1p(255.0 * x) / np.log1p(255.0),
+}
+
+DEFAULT_TONE_CURVE = "linear"
+
+#: Over-fitting flag: residual RMS below this fraction of the RMS expected from navigation noise alone.
+DEFAULT_OVERFIT_RATIO = 0.5
+
+#: A model of fewer registered images is no reconstruction (``DataFailure``): it cannot be aligned or scored.
+MIN_REGISTERED_IMAGES = 3
+
+
+# --------------------------------------------------------------------------------------------
+# Images
+# --------------------------------------------------------------------------------------------
+
+
+def reference_brightness(images) -> float:
+    """The set's robust maximum: the ``REFERENCE_PERCENTILE`` of its positive pixels (1 if none)."""
+    lit = np.concatenate([np.asarray(image, dtype=float).ravel() for image in images])
+    lit = lit[lit > 0]
+    if lit.size == 0:
+        return 1.0
+    return float(np.percentile(lit, REFERENCE_PERCENTILE))
+
+
+def tone_map(image: np.ndarray, reference: float, curve: str = DEFAULT_TONE_CURVE) -> np.ndarray:
+    """An 8-bit grayscale image (uint8, same shape) of a linear float image.
+
+    ``reference`` is the set's robust maximum (:func:`reference_brightness`),
+    the same for every image of a set so that a surface patch keeps its grey
+    level across images; brightness at or above it saturates at 255. The
+    curve is monotone (non-decreasing) in the linear brightness.
+    """
+    if curve not in TONE_CURVES:
+        raise ValueError(f"unknown tone curve {curve!r} (known: {', '.join(TONE_CURVES)})")
+    if not reference > 0:
+        raise ValueError(f"reference brightness must be positive, got {reference}")
+    scaled = np.clip(np.nan_to_num(np.asarray(image, dtype=float), nan=0.0) / reference, 0.0, 1.0)
+    return np.round(255.0 * TONE_CURVES[curve](scaled)).astype(np.uint8)
+
+
+def write_images(images, names, image_dir, curve: str = DEFAULT_TONE_CURVE) -> float:
+    """Tone-map a set and write one 8-bit PNG per image; returns the reference brightness used.
+
+    Written with pycolmap's own bitmap writer: PIL's PNG encoder aborts in a
+    process that has loaded pycolmap (two zlib builds).
+    """
+    import pycolmap
+
+    image_dir = Path(image_dir)
+    image_dir.mkdir(parents=True, exist_ok=True)
+    reference = reference_brightness(images)
+    for image, name in zip(images, names):
+        if not pycolmap.Bitmap.from_array(tone_map(image, reference, curve)).write(image_dir / name):
+            raise OSError(f"cannot write {image_dir / name}")
+    return reference
+
+
+# --------------------------------------------------------------------------------------------
+# Navigation priors and alignment
+# --------------------------------------------------------------------------------------------
+
+
+def simulate_navigation_positions(body_to_camera: np.ndarray, sigma_m: float, seed: int = 0) -> np.ndarray:
+    """Simulated navigation solution: true camera centres in the body frame plus N(0, sigma_m^2) per axis, (n, 3) metres."""
+    true_centres = camera_centres_body(np.asarray(body_to_camera, dtype=float))
+    rng = np.random.default_rng(seed)
+    return true_centres + rng.normal(0.0, sigma_m, size=true_centres.shape)
+
+
+def prior_covariance(camera_position_sigma_m: float, tie_point_sigma_px: float) -> np.ndarray:
+    """The 3x3 position covariance that gives COLMAP's unit-weight pixel residuals the stated accuracies (module docstring)."""
+    if not camera_position_sigma_m > 0 or not tie_point_sigma_px > 0:
+        raise ValueError(
+            f"accuracies must be positive: camera_position_sigma_m={camera_position_sigma_m}, tie_point_sigma_px={tie_point_sigma_px}"
+        )
+    return (camera_position_sigma_m / tie_point_sigma_px) ** 2 * np.eye(3)
+
+
+def similarity_alignment(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity (Umeyama 1991) with ``target ~ scale * rotation @ source + translation``.
+
+    Returns ``(scale, rotation (3, 3), translation (3,))``; needs 3 or more non-collinear points.
+    """
+    source = np.asarray(source, dtype=float)
+    target = np.asarray(target, dtype=float)
+    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
+        raise ValueError(f"need two (n >= 3, 3) arrays of corresponding points, got {source.shape} and {target.shape}")
+    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
+    source_centred, target_centred = source - source_mean, target - target_mean
+    covariance = target_centred.T @ source_centred / len(source)
+    u, singular_values, vt = np.linalg.svd(covariance)
+    reflection = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        reflection[2, 2] = -1.0
+    rotation = u @ reflection @ vt
+    source_variance = (source_centred**2).sum() / len(source)
+    scale = float(np.trace(np.diag(singular_values) @ reflection) / source_variance)
+    translation = target_mean - scale * rotation @ source_mean
+    return scale, rotation, translation
+
+
+def rms(vectors: np.ndarray) -> float:
+    """Root mean square of the Euclidean norms of (n, d) vectors."""
+    vectors = np.asarray(vectors, dtype=float)
+    return float(np.sqrt(np.mean(np.sum(vectors**2, axis=-1)))) if len(vectors) else float("nan")
+
+
+# --------------------------------------------------------------------------------------------
+# Reading a pycolmap model into arrays
+# --------------------------------------------------------------------------------------------
+
+
+def pose_matrix(rigid) -> np.ndarray:
+    """A 4x4 matrix of a pycolmap ``Rigid3d`` (``cam_from_world`` is our ``body_to_camera`` when the world is the body frame)."""
+    matrix = np.eye(4)
+    matrix[:3, :] = rigid.matrix()
+    return matrix
+
+
+@dataclass
+class Observations:
+    """Every observation of a 3-D point in a model, as flat arrays (one row per observation)."""
+
+    point3d_id: np.ndarray  # (m,) int64, COLMAP point3D ids
+    image_id: np.ndarray  # (m,) int64, COLMAP image ids
+    uv: np.ndarray  # (m, 2) float64, pixels, corner of the top-left pixel at (0, 0)
+
+
+def model_observations(reconstruction) -> Observations:
+    """All (point, image, pixel) observations of the registered images of a pycolmap model."""
+    point_ids, image_ids, uvs = [], [], []
+    for image_id in sorted(reconstruction.reg_image_ids()):
+        image = reconstruction.image(image_id)
+        points2d = image.get_observation_points2D()
+        point_ids.append(np.array([p.point3D_id for p in points2d], dtype=np.int64))
+        uvs.append(np.array([p.xy for p in points2d], dtype=float).reshape(-1, 2))
+        image_ids.append(np.full(len(points2d), image_id, dtype=np.int64))
+    if not point_ids:
+        return Observations(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))
+    return Observations(np.concatenate(point_ids), np.concatenate(image_ids), np.concatenate(uvs))
+
+
+def reprojection_residuals(reconstruction, observations: Observations | None = None) -> np.ndarray:
+    """Observed minus projected pixel position of every observation, (m, 2) pixels."""
+    observations = model_observations(reconstruction) if observations is None else observations
+    residuals = np.zeros_like(observations.uv)
+    xyz = {point_id: reconstruction.point3D(point_id).xyz for point_id in np.unique(observations.point3d_id)}
+    for image_id in np.unique(observations.image_id):
+        image = reconstruction.image(int(image_id))
+        rows = np.flatnonzero(observations.image_id == image_id)
+        points_world = np.array([xyz[point_id] for point_id in observations.point3d_id[rows]])
+        pose = pose_matrix(image.cam_from_world())
+        points_cam = points_world @ pose[:3, :3].T + pose[:3, 3]
+        projected = image.camera.img_from_cam(points_cam, check_cheirality=False)
+        residuals[rows] = observations.uv[rows] - projected
+    return residuals
+
+
+# --------------------------------------------------------------------------------------------
+# Bundle adjustment with position priors
+# --------------------------------------------------------------------------------------------
+
+
+def make_pose_priors(reconstruction, prior_positions: dict, covariance: np.ndarray) -> list:
+    """pycolmap ``PosePrior`` objects (Cartesian, body frame) for the images of a model.
+
+    ``prior_positions`` maps COLMAP image ids to camera centres (metres).
+    """
+    import pycolmap
+
+    priors = []
+    for image_id, position in prior_positions.items():
+        if not reconstruction.exists_image(int(image_id)):
+            continue
+        priors.append(
+            pycolmap.PosePrior(
+                corr_data_id=reconstruction.image(int(image_id)).data_id,
+                position=np.asarray(position, dtype=float),
+                position_covariance=np.asarray(covariance, dtype=float),
+                coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+            )
+        )
+    return priors
+
+
+def bundle_adjust(
+    reconstruction,
+    prior_positions: dict | None = None,
+    *,
+    camera_position_sigma_m: float = 1.0,
+    tie_point_sigma_px: float = 1.0,
+    refine_intrinsics: bool = False,
+    max_num_iterations: int = 200,
+    num_threads: int = -1,
+    seed: int = 0,
+):
+    """Global bundle adjustment of a pycolmap model in place; returns pycolmap's summary.
+
+    With ``prior_positions`` (COLMAP image id -> camera centre in metres, the
+    target frame), a pose-prior adjustment weighted by the stated accuracies
+    (module docstring): pycolmap first aligns the model to the priors with a
+    RANSAC similarity, so the result is in the priors' frame whatever frame it
+    started in. Without, a plain adjustment with the gauge fixed on two
+    cameras, so the model keeps its frame. Intrinsics are held unless
+    ``refine_intrinsics`` (focal lengths only; the principal point is left
+    alone, it trades off against the pointing of a narrow-field camera).
+    Plain least squares: outliers were removed by the mapper.
+    """
+    import pycolmap
+
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = bool(refine_intrinsics)
+    options.refine_principal_point = False
+    options.refine_extra_params = False
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.TRIVIAL
+    options.ceres.solver_options.max_num_iterations = int(max_num_iterations)
+    options.ceres.solver_options.function_tolerance = 1e-10
+    options.ceres.solver_options.gradient_tolerance = 1e-10
+    options.ceres.solver_options.parameter_tolerance = 1e-10
+    options.ceres.solver_options.num_threads = int(num_threads)
+
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in reconstruction.reg_image_ids():
+        config.add_image(image_id)
+    if not refine_intrinsics:
+        for camera_id in reconstruction.cameras:
+            config.set_constant_cam_intrinsics(camera_id)
+
+    if prior_positions:
+        prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
+        # Inlier radius of pycolmap's first similarity alignment to the priors: about 5 sigma, generous
+        # because the model's own position errors add to the navigation noise.
+        prior_options.alignment_ransac.max_error = 3.0 * np.sqrt(3.0) * camera_position_sigma_m
+        prior_options.alignment_ransac.random_seed = int(seed)
+        priors = make_pose_priors(reconstruction, prior_positions, prior_covariance(camera_position_sigma_m, tie_point_sigma_px))
+        adjuster = pycolmap.create_pose_prior_bundle_adjuster(options, prior_options, config, priors, reconstruction)
+    else:
+        config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+        adjuster = pycolmap.create_default_bundle_adjuster(options, config, reconstruction)
+    summary = adjuster.solve()
+    if not summary.is_solution_usable():
+        log.warning("bundle adjustment: no usable solution (%s)", summary.brief_report())
+    return summary
+
+
+# --------------------------------------------------------------------------------------------
+# The report
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class ReconstructionReport:
+    """What one reconstruction achieved; :meth:`to_dict` is what the workflow writes as JSON.
+
+    Camera-position quantities are RMS over the registered images of the 3-D
+    distance between camera centres (metres). ``cam_pos_rms_m``, the residual
+    against the priors, exists only with priors (``None`` otherwise);
+    ``cam_pos_true_rms_m`` compares with the true centres directly in the body
+    frame when priors were used, after a least-squares similarity alignment
+    otherwise (then ``alignment_scale`` is the scale of that alignment);
+    ``cam_rot_true_rms_deg`` is the RMS angle between estimated and true
+    camera orientations in the same frame. See :func:`pose_report`.
+    """
+
+    n_images: int
+    n_images_registered: int
+    n_points3d: int
+    n_observations: int
+    mean_track_length: float
+    reproj_rms_px: float
+    use_priors: bool
+    world_frame: str  # "body" (priors on: body frame, metres) or "arbitrary" (a similarity of it)
+    camera_position_sigma_m: float | None
+    tie_point_sigma_px: float | None
+    cam_pos_rms_m: float | None
+    cam_pos_rms_expected_m: float | None
+    cam_pos_rms_ratio: float | None
+    overfit_ratio: float | None
+    prior_overfit: bool | None
+    prior_pos_true_rms_m: float | None
+    cam_pos_true_rms_m: float
+    cam_rot_true_rms_deg: float
+    alignment_scale: float | None
+    intrinsics: str
+    focal_px: float
+    seconds: float
+    stage_seconds: dict = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """Plain types for JSON; NaN (undefined, e.g. an alignment of fewer than 3 cameras) becomes None."""
+        return {key: None if isinstance(value, float) and not np.isfinite(value) else value for key, value in asdict(self).items()}
+
+
+def pose_report(
+    body_to_camera: np.ndarray,
+    true_body_to_camera: np.ndarray,
+    prior_centres: np.ndarray | None,
+    camera_position_sigma_m: float | None,
+    overfit_ratio: float = DEFAULT_OVERFIT_RATIO,
+) -> dict:
+    """Camera entries of :class:`ReconstructionReport` for (n, 4, 4) corresponding poses.
+
+    ``body_to_camera`` are the model's poses: from the body frame when
+    ``prior_centres`` (n, 3) is given (priors were used), from any similarity
+    of it otherwise; then they are compared with the truth after the
+    least-squares similarity that maps their camera centres onto the true ones.
+    Rotation errors are the angles of ``R_est R_true^T`` (degrees).
+    """
+    body_to_camera = np.asarray(body_to_camera, dtype=float).reshape(-1, 4, 4)
+    true_body_to_camera = np.asarray(true_body_to_camera, dtype=float).reshape(-1, 4, 4)
+    centres, true_centres = camera_centres_body(body_to_camera), camera_centres_body(true_body_to_camera)
+    rotations = body_to_camera[:, :3, :3]
+    n = len(centres)
+    entries = {key: None for key in (
+        "cam_pos_rms_m", "cam_pos_rms_expected_m", "cam_pos_rms_ratio", "overfit_ratio", "prior_overfit",
+        "prior_pos_true_rms_m", "alignment_scale",
+    )}
+    if prior_centres is not None:
+        prior_centres = np.asarray(prior_centres, dtype=float).reshape(-1, 3)
+        residual_rms = rms(centres - prior_centres)
+        expected = float(camera_position_sigma_m * np.sqrt(max(3.0 - 7.0 / n, 0.0))) if n else float("nan")
+        ratio = residual_rms / expected if expected > 0 else float("nan")
+        entries.update(
+            cam_pos_rms_m=residual_rms, cam_pos_rms_expected_m=expected, cam_pos_rms_ratio=ratio,
+            overfit_ratio=float(overfit_ratio), prior_overfit=bool(ratio < overfit_ratio),
+            prior_pos_true_rms_m=rms(prior_centres - true_centres),
+        )
+    elif n >= 3:
+        scale, rotation, translation = similarity_alignment(centres, true_centres)
+        centres = scale * centres @ rotation.T + translation
+        rotations = rotations @ rotation.T  # body from model frame is `rotation`: R_cam_from_body = R_cam_from_model R^T
+        entries["alignment_scale"] = scale
+    else:
+        centres = np.full_like(centres, np.nan)
+        rotations = np.full_like(rotations, np.nan)
+    relative = np.einsum("nij,nkj->nik", rotations, true_body_to_camera[:, :3, :3])
+    angles_deg = np.degrees(np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+    entries["cam_pos_true_rms_m"] = rms(centres - true_centres)
+    entries["cam_rot_true_rms_deg"] = float(np.sqrt(np.mean(angles_deg**2))) if n else float("nan")
+    return entries
+
+
+def model_report(
+    model,
+    true_body_to_camera: np.ndarray,
+    prior_positions: np.ndarray | None = None,
+    *,
+    camera_position_sigma_m: float | None = None,
+    tie_point_sigma_px: float | None = None,
+    intrinsics_mode: str = "fixed",
+    overfit_ratio: float = DEFAULT_OVERFIT_RATIO,
+    seconds: float = 0.0,
+    stage_seconds: dict | None = None,
+    settings: dict | None = None,
+) -> ReconstructionReport:
+    """The report of a pycolmap model whose images are named ``image_NNN`` (:func:`image_name`).
+
+    ``true_body_to_camera`` (n_images, 4, 4) and ``prior_positions``
+    (n_images, 3; ``None`` when no priors were used) are indexed by set index.
+    """
+    true_body_to_camera = np.asarray(true_body_to_camera, dtype=float)
+    use_priors = prior_positions is not None
+    registered = sorted((image_index(model.image(image_id).name), image_id) for image_id in model.reg_image_ids())
+    registered_indices = np.array([index for index, _ in registered], dtype=int)
+    estimated_poses = np.array([pose_matrix(model.image(image_id).cam_from_world()) for _, image_id in registered]).reshape(-1, 4, 4)
+    poses = pose_report(
+        estimated_poses, true_body_to_camera[registered_indices],
+        np.asarray(prior_positions, dtype=float)[registered_indices] if use_priors else None,
+        camera_position_sigma_m, overfit_ratio,
+    )
+    residuals = reprojection_residuals(model)
+    camera = next(iter(model.cameras.values()))
+    return ReconstructionReport(
+        n_images=len(true_body_to_camera),
+        n_images_registered=int(model.num_reg_images()),
+        n_points3d=int(model.num_points3D()),
+        n_observations=int(len(residuals)),
+        mean_track_length=float(model.compute_mean_track_length()) if model.num_points3D() else 0.0,
+        reproj_rms_px=rms(residuals),
+        use_priors=use_priors,
+        world_frame="body" if use_priors else "arbitrary",
+        camera_position_sigma_m=float(camera_position_sigma_m) if use_priors else None,
+        tie_point_sigma_px=float(tie_point_sigma_px) if use_priors else None,
+        intrinsics=intrinsics_mode,
+        focal_px=float(camera.mean_focal_length()),
+        seconds=float(seconds),
+        stage_seconds=dict(stage_seconds or {}),
+        settings=dict(settings or {}),
+        **poses,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# The result
+# --------------------------------------------------------------------------------------------
+
+
+def image_name(index: int) -> str:
+    """The 8-bit image written for image ``index`` of a set (its index is recoverable from the name)."""
+    return f"image_{index:03d}.png"
+
+
+def image_index(name: str) -> int:
+    return int(Path(name).stem.split("_")[-1])
+
+
+@dataclass
+class SparseReconstruction:
+    """A sparse model of one set: the pycolmap model, the report and the priors used.
+
+    Images are addressed by their index in the rendered set (``image_NNN``),
+    not by COLMAP's image ids. The model's world frame is the body frame
+    (metres) when priors were used (``report.world_frame == "body"``), an
+    arbitrary similarity frame otherwise.
+    """
+
+    model: object  # pycolmap.Reconstruction
+    report: ReconstructionReport
+    prior_positions: np.ndarray | None = None  # (n_images, 3) navigation priors, body frame, metres
+
+    def _image_ids_by_index(self) -> dict[int, int]:
+        return {image_index(self.model.image(image_id).name): image_id for image_id in self.model.reg_image_ids()}
+
+    @property
+    def registered_indices(self) -> np.ndarray:
+        """Set indices of the registered images, ascending."""
+        return np.array(sorted(self._image_ids_by_index()), dtype=int)
+
+    def body_to_camera(self) -> dict[int, np.ndarray]:
+        """Estimated 4x4 pose of every registered image: set index -> ``X_cam = R @ X_world + t`` (OpenCV convention).
+
+        The world is the body frame when ``report.world_frame == "body"``.
+        """
+        return {index: pose_matrix(self.model.image(image_id).cam_from_world()) for index, image_id in sorted(self._image_ids_by_index().items())}
+
+    def camera_centres(self) -> dict[int, np.ndarray]:
+        """Estimated camera centre of every registered image (set index -> (3,), world frame)."""
+        return {index: np.asarray(self.model.image(image_id).projection_center()) for index, image_id in sorted(self._image_ids_by_index().items())}
+
+    def intrinsics(self) -> Intrinsics:
+        """The (single) camera's intrinsics after adjustment (focal length: mean of fx and fy)."""
+        camera = next(iter(self.model.cameras.values()))
+        return Intrinsics(
+            int(camera.width), int(camera.height), float(camera.mean_focal_length()),
+            float(camera.principal_point_x), float(camera.principal_point_y),
+        )
+
+    def points3d(self) -> tuple[np.ndarray, np.ndarray]:
+        """The sparse cloud: ``(point3d_ids (p,), xyz (p, 3))``, world frame, ids ascending."""
+        ids = np.array(sorted(self.model.point3D_ids()), dtype=np.int64)
+        xyz = np.array([self.model.point3D(int(point_id)).xyz for point_id in ids], dtype=float).reshape(-1, 3)
+        return ids, xyz
+
+    def tracks(self) -> dict[str, np.ndarray]:
+        """Every observation: ``point`` (row into :meth:`points3d`), ``image`` (set index), ``uv`` (pixels), flat arrays."""
+        observations = model_observations(self.model)
+        ids, _ = self.points3d()
+        index_by_image_id = {image_id: index for index, image_id in self._image_ids_by_index().items()}
+        return {
+            "point": np.searchsorted(ids, observations.point3d_id),
+            "image": np.array([index_by_image_id[int(image_id)] for image_id in observations.image_id], dtype=int),
+            "uv": observations.uv,
+        }
+
+    def write(self, out_dir) -> None:
+        """Write the model (COLMAP binary, ``model/``), ``report.json`` and ``prior_positions.npy`` to a directory."""
+        out_dir = Path(out_dir)
+        model_dir = out_dir / "model"
+        model_dir.mkdir(parents=True, exist_ok=True)
+        self.model.write(model_dir)
+        files.write_json(out_dir / "report.json", self.report.to_dict())
+        priors_path = out_dir / "prior_positions.npy"
+        if self.prior_positions is not None:
+            np.save(priors_path, self.prior_positions)
+        elif priors_path.exists():
+            priors_path.unlink()
+
+    @classmethod
+    def read(cls, in_dir) -> "SparseReconstruction":
+        """The inverse of :meth:`write`."""
+        import pycolmap
+
+        in_dir = Path(in_dir)
+        model = pycolmap.Reconstruction()
+        model.read(in_dir / "model")
+        report = ReconstructionReport(**json.loads((in_dir / "report.json").read_text()))
+        priors_path = in_dir / "prior_positions.npy"
+        return cls(model, report, np.load(priors_path) if priors_path.exists() else None)
+
+
+# --------------------------------------------------------------------------------------------
+# The pipeline
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class FeatureOptions:
+    """SIFT and matching settings (COLMAP's defaults unless measured otherwise)."""
+
+    max_num_features: int = 8192
+    peak_threshold: float = 0.02 / 3  # COLMAP's default
+    upright: bool = False
+    domain_size_pooling: bool = False
+    guided_matching: bool = False
+    max_ratio: float = 0.8
+    # The mapper's image registration (COLMAP: abs_pose_min_num_inliers 30, abs_pose_min_inlier_ratio
+    # 0.25). With ~400 features per image on the k = 0.7 sets, 30 inliers split the mapper into
+    # 3 models of 16, 15 and 11 images; 15 and 0.1 register all 36 with unchanged reprojection
+    # RMS and camera accuracy (0.41-0.44 px, 1.65 m with priors), and change nothing on sets
+    # that registered already (light10_albedo0.5_k1: the same 1888 points and cameras).
+    min_pose_inliers: int = 15
+    min_pose_inlier_ratio: float = 0.1
+
+
+#: Threads of the incremental mapper and of the bundle adjustments. One, for the same model on every
+#: run: Ceres sums the cost and gradient of a multi-threaded evaluation in the order its threads finish
+#: (COLMAP turns threading on above 50000 residuals; these sets have about 12000, so one thread costs
+#: nothing here). Extraction (per image) and matching (per pair) are the same at any thread count, once
+#: the image ids are fixed (``reconstruct_images``).
+MAPPING_THREADS = 1
+
+
+def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: int, seed: int) -> dict:
+    import pycolmap
+
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = num_threads
+    extraction.use_gpu = False
+    extraction.sift.max_num_features = features.max_num_features
+    extraction.sift.peak_threshold = features.peak_threshold
+    extraction.sift.upright = features.upright
+    extraction.sift.domain_size_pooling = features.domain_size_pooling
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    matching.use_gpu = False
+    matching.guided_matching = features.guided_matching
+    matching.sift.max_ratio = features.max_ratio
+
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = seed
+
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.num_threads = MAPPING_THREADS
+    mapping.random_seed = seed
+    mapping.extract_colors = False
+    # The mapper always holds the intrinsics; "refine" frees the focal lengths in the final
+    # adjustment only. Refining them during incremental mapping is ill-conditioned for this
+    # narrow field of view (focal length and distance trade off): on light10_albedo0.7_k0.8 it
+    # registered 19 of 36 images with f = 2041 px (true 3561 px) with priors, 2 of 36 with
+    # f = 3.1e5 px without.
+    mapping.ba_refine_focal_length = False
+    mapping.ba_refine_principal_point = False
+    mapping.ba_refine_extra_params = False
+    mapping.use_prior_position = use_priors
+    mapping.mapper.abs_pose_min_num_inliers = features.min_pose_inliers
+    mapping.mapper.abs_pose_min_inlier_ratio = features.min_pose_inlier_ratio
+    return {"extraction": extraction, "matching": matching, "verification": verification, "mapping": mapping}
+
+
+def reconstruct_images(
+    images,
+    intrinsics: Intrinsics,
+    work_dir,
+    *,
+    true_body_to_camera: np.ndarray,
+    intrinsics_mode: str = "fixed",
+    use_priors: bool = True,
+    camera_position_sigma_m: float = 1.0,
+    tie_point_sigma_px: float = 1.0,
+    prior_seed: int = 0,
+    tone_curve: str = DEFAULT_TONE_CURVE,
+    features: FeatureOptions | None = None,
+    overfit_ratio: float = DEFAULT_OVERFIT_RATIO,
+    num_threads: int = -1,
+    seed: int = 0,
+) -> SparseReconstruction:
+    """Sparse reconstruction of one set of linear float images (list of (H, W) arrays, set order).
+
+    ``work_dir`` receives the 8-bit images (``images/``), the COLMAP database
+    (``database.db``) and the mapper's models (``mapper/``), each replaced if
+    present. ``true_body_to_camera`` (n, 4, 4) are the
+    true poses: their camera centres plus noise of ``camera_position_sigma_m``
+    (seed ``prior_seed``) are the navigation priors, and they score the result.
+    ``intrinsics_mode`` is ``"fixed"`` (the known intrinsics, never refined) or
+    ``"refine"`` (focal lengths refined in the final bundle adjustment).
+    ``num_threads`` (-1: all cores, COLMAP's convention) is for feature
+    extraction and matching; mapping and bundle adjustment run on
+    ``MAPPING_THREADS``. ``seed`` seeds pycolmap's RANSACs and mapper: the
+    same images, settings and seed give the same model, bit for bit.
+    """
+    import pycolmap
+
+    if intrinsics_mode not in ("fixed", "refine"):
+        raise ValueError(f"intrinsics must be 'fixed' or 'refine', got {intrinsics_mode!r}")
+    true_body_to_camera = np.asarray(true_body_to_camera, dtype=float)
+    if len(true_body_to_camera) != len(images):
+        raise ValueError(f"{len(images)} images but {len(true_body_to_camera)} poses")
+    features = FeatureOptions() if features is None else features
+    started = time.perf_counter()
+    stage_seconds = {}
+    pycolmap.set_random_seed(seed)
+
+    work_dir = Path(work_dir)
+    image_dir, database_path, mapper_dir = work_dir / "images", work_dir / "database.db", work_dir / "mapper"
+    for directory in (image_dir, mapper_dir):  # only what this function writes: a rerun starts clean
+        shutil.rmtree(directory, ignore_errors=True)
+    database_path.unlink(missing_ok=True)
+    mapper_dir.mkdir(parents=True)
+    names = [image_name(i) for i in range(len(images))]
+    reference = write_images(images, names, image_dir, tone_curve)
+    options = _pycolmap_options(features, use_priors, num_threads, seed)
+
+    tick = time.perf_counter()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    reader.camera_params = f"{intrinsics.focal_px!r},{intrinsics.focal_px!r},{intrinsics.cx!r},{intrinsics.cy!r}"
+    # The images enter the database one by one in set order first: the extractor numbers images in the
+    # order its threads finish them, and the mapper's choices (initial pair, next image) follow the ids.
+    with pycolmap.Database.open(database_path):  # a new, empty database
+        pass
+    pycolmap.import_images(database_path, image_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader)
+    pycolmap.extract_features(
+        database_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader, extraction_options=options["extraction"], device=pycolmap.Device.cpu,
+    )
+    stage_seconds["features"] = time.perf_counter() - tick
+
+    prior_centres = simulate_navigation_positions(true_body_to_camera, camera_position_sigma_m, prior_seed) if use_priors else None
+    with pycolmap.Database.open(database_path) as database:
+        image_ids = {image.name: image.image_id for image in database.read_all_images()}
+        n_keypoints = {name: database.num_keypoints_for_image(image_id) for name, image_id in image_ids.items()}
+        if use_priors:
+            covariance = prior_covariance(camera_position_sigma_m, tie_point_sigma_px)
+            for image in database.read_all_images():
+                database.write_pose_prior(
+                    pycolmap.PosePrior(
+                        corr_data_id=image.data_id, position=prior_centres[image_index(image.name)],
+                        position_covariance=covariance, coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+                    )
+                )
+    log.info("SIFT: %d to %d keypoints per image (median %d)", min(n_keypoints.values()), max(n_keypoints.values()), int(np.median(list(n_keypoints.values()))))
+
+    tick = time.perf_counter()
+    pycolmap.match_exhaustive(
+        database_path, matching_options=options["matching"], verification_options=options["verification"], device=pycolmap.Device.cpu,
+    )
+    stage_seconds["matching"] = time.perf_counter() - tick
+    with pycolmap.Database.open(database_path) as database:
+        n_verified_pairs = database.num_verified_image_pairs()
+    log.info("%d verified image pairs", n_verified_pairs)
+
+    tick = time.perf_counter()
+    models = pycolmap.incremental_mapping(database_path, image_dir, mapper_dir, options["mapping"])
+    stage_seconds["mapping"] = time.perf_counter() - tick
+    sizes = {key: model.num_reg_images() for key, model in models.items()}
+    if max(sizes.values(), default=0) < MIN_REGISTERED_IMAGES:
+        from asteroid_photometry.core.failures import DataFailure
+
+        raise DataFailure(
+            f"pycolmap registered {max(sizes.values(), default=0)} of {len(images)} images in its largest model "
+            f"(at least {MIN_REGISTERED_IMAGES} needed; {n_verified_pairs} verified image pairs)"
+        )
+    model = models[max(sizes, key=sizes.get)]
+    log.info("mapper: %d model(s) with %s registered images; keeping the largest", len(models), sorted(sizes.values(), reverse=True))
+
+    tick = time.perf_counter()
+    index_by_image_id = {image_id: image_index(model.image(image_id).name) for image_id in model.reg_image_ids()}
+    priors_by_image_id = {image_id: prior_centres[index] for image_id, index in index_by_image_id.items()} if use_priors else None
+    bundle_adjust(
+        model, priors_by_image_id, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px,
+        refine_intrinsics=intrinsics_mode == "refine", num_threads=MAPPING_THREADS, seed=seed,
+    )
+    stage_seconds["final_bundle_adjustment"] = time.perf_counter() - tick
+
+    report = model_report(
+        model, true_body_to_camera, prior_centres, camera_position_sigma_m=camera_position_sigma_m,
+        tie_point_sigma_px=tie_point_sigma_px, intrinsics_mode=intrinsics_mode, overfit_ratio=overfit_ratio,
+        seconds=time.perf_counter() - started, stage_seconds=stage_seconds,
+        settings={
+            "tone_curve": tone_curve, "reference_brightness": reference, "prior_seed": int(prior_seed), "seed": int(seed),
+            "features": asdict(features), "n_models": len(models), "n_verified_pairs": int(n_verified_pairs),
+            "median_keypoints": int(np.median(list(n_keypoints.values()))),
+        },
+    )
+    if use_priors and report.cam_pos_rms_m is not None and report.cam_pos_rms_m > 10.0 * report.cam_pos_rms_expected_m:
+        log.warning(
+            "the cameras are %.3g m RMS from their priors, more than 10 times the %.3g m expected: "
+            "pycolmap's alignment to the priors may have failed and the model may not be in the body frame",
+            report.cam_pos_rms_m, report.cam_pos_rms_expected_m,
+        )
+    log.info("reconstruction: %s", json.dumps(report.to_dict()))
+    full_priors = prior_centres if use_priors else None
+    return SparseReconstruction(model, report, full_priors)
+
+

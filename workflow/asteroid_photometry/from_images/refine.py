@@ -1,0 +1,340 @@
+"""Photometric refinement of a reconstructed cloud (Iwano's Eq. 7; the paper's future work): positions and normals.
+
+A multi-view-stereo normal is a local plane fit through noisy points, a
+dozen degrees off on Itokawa, and a SIFT point sits where the image changes:
+on a facet's edge or corner, so its samples mix neighbouring facets in every
+image. Both spoil the estimator (the ``geometry_sensitivity`` study measures
+by how much). The refinement therefore moves the samples as well as the
+normals (:func:`refine_by_pure_samples`):
+
+1. candidate points are drawn uniformly on a surface through the cloud
+   (its Poisson surface), with that surface's normals;
+2. each candidate is slid along its normal over a few pixels' worth of
+   offsets, and at every offset sampled only where the image itself shows
+   the sample pure (``cloud.sample_pure``: the four pixels of a bilinear
+   sample agree), in every image that sees it;
+3. with at least ``min_observations`` pure samples, the candidate's normal,
+   albedo and k are fitted to them with the light fixed at the estimator's
+   value (a Levenberg-Marquardt step per point, vectorised over all points:
+   4x4 normal equations per point, solved in one batched call, with the
+   surface's normal as a Gaussian prior); the offset whose samples one
+   facet explains best (smallest relative RMS residual) is kept, and a
+   candidate is accepted when that residual is small: samples from two
+   facets do not fit one normal;
+4. the light is fitted again to the accepted points' pure samples, with
+   their normals held and one Minnaert k for the whole body
+   (``estimate.fit_pooled_k``);
+5. the estimator runs again on the accepted points, with their fitted
+   normals and pure samples; the paper's estimator fits each point's
+   albedo and k under step 4's light.
+
+The normal only turns about the body's spin axis (the normal of the plane
+of the camera centres, ``spin_axis``): seen from a ring of views with the
+Sun in its plane, a point's brightness fixes its normal's longitude, while
+a latitude error only scales the brightness by ``cos(lat)^(2k - 1)``, which
+the point's albedo absorbs. Left free, the latitude wanders with whatever
+the light's elevation is (flattened on one run, -0.008 in the mean albedo);
+held at the surface's, it costs only albedo scatter.
+
+Two parts of the light behave differently. Its azimuth (about the spin
+axis) the refinement keeps from where it started: a common turn of the
+normals and the light about that axis changes only the weak
+``cos_o^(k - 1)`` factor, so the fitted longitudes follow the starting
+light (a second refinement pass under step 4's light moved its azimuth by
+0.01 deg or less on three sets). Its elevation, out of the plane of the
+views and the Sun, is what a free k per point cannot hold
+(``estimate.fit_pooled_k`` says why): on the 16 sets with priors the
+paper's joint fit on the pure samples leaves the light 0.17 to 1.86 deg
+off, and step 4, with one k, 0.07 to 0.40 deg.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from asteroid_photometry.core import files
+from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, Observations
+from asteroid_photometry.from_images import cloud as cloud_lib
+from asteroid_photometry.world.cameras import Intrinsics
+
+log = logging.getLogger(__name__)
+
+COS_FLOOR = 1e-6
+
+
+def _tangent_basis(normals):
+    helper = np.where(np.abs(normals[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(normals, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(normals, e1)
+
+
+def _turn(normals, axis, angle):
+    """``normals`` turned about ``axis`` (unit) by ``angle`` (rad, one per row): Rodrigues' formula."""
+    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    along = (normals @ axis)[:, None] * axis
+    return normals * cos + np.cross(axis, normals) * sin + along * (1.0 - cos)
+
+
+def spin_axis(camera_centres) -> np.ndarray:
+    """The axis the body turns about, from the cameras alone: the normal of the best plane through their centres (unit, sign arbitrary)."""
+    centres = np.asarray(camera_centres, dtype=float)
+    _, _, vt = np.linalg.svd(centres - centres.mean(axis=0))
+    return vt[2]
+
+
+def _model(normals_obs, light_b, view_b, albedo_obs, k_obs):
+    cos_i = np.maximum(np.einsum("ij,ij->i", normals_obs, light_b), COS_FLOOR)
+    cos_o = np.maximum(np.einsum("ij,ij->i", normals_obs, view_b), COS_FLOOR)
+    return albedo_obs * cos_i**k_obs * cos_o ** (k_obs - 1.0), cos_i, cos_o
+
+
+def refine_points(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam, *, n_iterations=15, min_observations=8, max_tilt_deg=45.0, normal_prior_deg=10.0, fit_albedo_k=True, noise_var=None, axis=None):
+    """Per-point LM on (normal, albedo, k) with the light fixed; returns new arrays and the refined mask.
+
+    ``rotations`` (n_obs, 3, 3) are the body-to-camera rotations of each
+    observation's image; normals are in the reconstruction (body) frame.
+    The starting normal acts as a Gaussian prior of ``normal_prior_deg`` per
+    axis, weighed against the brightness residuals' own scatter (a MAP
+    estimate: brightness errors from mispositioned samples otherwise tilt
+    normals freely); a normal may turn at most ``max_tilt_deg``. With an
+    ``axis`` a normal only turns about it (its latitude about the axis stays).
+    """
+    n_points = len(normals)
+    counts = np.bincount(point_index, minlength=n_points)
+    active = (counts >= min_observations) & np.isfinite(albedo) & np.isfinite(minnaert_k)
+    use = active[point_index]
+    p, rot, brightness = point_index[use], rotations[use], brightness[use]
+    light_b = np.einsum("nji,j->ni", rot, light_dir_cam)  # R^T l
+    view_b = np.einsum("nji,nj->ni", rot, view_cam[use])  # R^T v
+    start = normals.copy()
+    normals, albedo, minnaert_k = normals.copy(), albedo.copy(), minnaert_k.copy()
+    original_albedo, original_k = albedo.copy(), minnaert_k.copy()
+    albedo[~active], minnaert_k[~active] = 1.0, 1.0  # placeholders, restored below
+    damping = np.full(n_points, 1e-3)
+
+    f0, _, _ = _model(normals[p], light_b, view_b, albedo[p], minnaert_k[p])
+    if noise_var is None:
+        noise_var = np.median((f0 - brightness) ** 2) / 0.455  # robust variance of the residuals
+    prior_weight = noise_var / np.radians(normal_prior_deg) ** 2
+
+    def costs(n, a, k):
+        f, _, _ = _model(n[p], light_b, view_b, a[p], k[p])
+        tilt2 = np.sum((n - start) ** 2, axis=1)
+        return np.bincount(p, weights=(f - brightness) ** 2, minlength=n_points) + prior_weight * tilt2
+
+    cost = costs(normals, albedo, minnaert_k)
+    for _ in range(n_iterations):
+        if axis is None:
+            e1, e2 = _tangent_basis(normals)
+        else:  # the derivative of a turn about the axis; no second direction
+            e1, e2 = np.cross(axis, normals), np.zeros_like(normals)
+        f, cos_i, cos_o = _model(normals[p], light_b, view_b, albedo[p], minnaert_k[p])
+        k = minnaert_k[p]
+        d_normal = f[:, None] * (k[:, None] / cos_i[:, None] * light_b + (k[:, None] - 1.0) / cos_o[:, None] * view_b)
+        jac = np.stack([
+            np.einsum("ij,ij->i", d_normal, e1[p]),
+            np.einsum("ij,ij->i", d_normal, e2[p]),
+            f / albedo[p],
+            f * (np.log(cos_i) + np.log(cos_o)),
+        ], axis=1)
+        residual = f - brightness
+        jtj = np.zeros((n_points, 4, 4))
+        jtr = np.zeros((n_points, 4))
+        for a in range(4):
+            jtr[:, a] = np.bincount(p, weights=jac[:, a] * residual, minlength=n_points)
+            for b in range(a, 4):
+                jtj[:, a, b] = jtj[:, b, a] = np.bincount(p, weights=jac[:, a] * jac[:, b], minlength=n_points)
+        # The prior on the normal, linearised in the tangent plane of the current normal.
+        offset = normals - start
+        jtr[:, 0] += prior_weight * np.einsum("ij,ij->i", offset, e1)
+        jtr[:, 1] += prior_weight * np.einsum("ij,ij->i", offset, e2)
+        jtj[:, 0, 0] += prior_weight * np.einsum("ij,ij->i", e1, e1)
+        jtj[:, 1, 1] += prior_weight * np.einsum("ij,ij->i", e2, e2)
+        diag = np.einsum("nii->ni", jtj)
+        system = jtj + (damping[:, None] * np.maximum(diag, 1e-12))[:, :, None] * np.eye(4)
+        if axis is not None:  # one angle: the second normal row is frozen
+            system[:, 1, :] = system[:, :, 1] = 0.0
+            system[:, 1, 1] = 1.0
+            jtr[:, 1] = 0.0
+        if not fit_albedo_k:  # normals only: the albedo and k rows are frozen
+            system[:, 2:, :] = 0.0
+            system[:, :, 2:] = 0.0
+            system[:, 2, 2] = system[:, 3, 3] = 1.0
+            jtr[:, 2:] = 0.0
+        system[~active] = np.eye(4)
+        step = -np.linalg.solve(system, jtr[:, :, None])[:, :, 0]
+        step[~active] = 0.0
+        if axis is None:
+            trial_normals = normals + step[:, [0]] * e1 + step[:, [1]] * e2
+            trial_normals /= np.linalg.norm(trial_normals, axis=1, keepdims=True)
+        else:
+            trial_normals = _turn(normals, axis, step[:, 0])
+        trial_albedo = np.maximum(albedo + step[:, 2], 1e-4)
+        trial_k = np.clip(minnaert_k + step[:, 3], 0.05, 2.0)
+        tilt_ok = np.einsum("ij,ij->i", trial_normals, start) >= np.cos(np.radians(max_tilt_deg))
+        trial_cost = costs(trial_normals, trial_albedo, trial_k)
+        better = active & tilt_ok & (trial_cost < cost)
+        normals[better], albedo[better], minnaert_k[better], cost[better] = trial_normals[better], trial_albedo[better], trial_k[better], trial_cost[better]
+        damping = np.where(better, damping / 3.0, damping * 4.0)
+    albedo[~active], minnaert_k[~active] = original_albedo[~active], original_k[~active]
+    return normals, albedo, minnaert_k, active
+
+
+def relative_residuals(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam) -> np.ndarray:
+    """Per point: RMS of (model - observed) over its observations, relative to its mean brightness (inf without any)."""
+    n_points = len(normals)
+    light_b = np.einsum("nji,j->ni", rotations, light_dir_cam)
+    view_b = np.einsum("nji,nj->ni", rotations, view_cam)
+    model, _, _ = _model(normals[point_index], light_b, view_b, albedo[point_index], minnaert_k[point_index])
+    counts = np.bincount(point_index, minlength=n_points)
+    squares = np.bincount(point_index, weights=(model - brightness) ** 2, minlength=n_points)
+    total = np.bincount(point_index, weights=brightness, minlength=n_points)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        residual = np.sqrt(squares / counts) / (total / counts)
+    return np.where(counts > 0, residual, np.inf)
+
+
+@dataclass
+class PureSampleCloud:
+    """The refined cloud: accepted points with fitted normals and their pure samples."""
+
+    points: np.ndarray  # (M, 3) reconstruction frame, each at its chosen offset
+    normals: np.ndarray  # (M, 3) fitted normals, reconstruction frame
+    surface_normals: np.ndarray  # (M, 3) the surface's normals there, where the fit started
+    observations: Observations  # their pure samples (camera frames)
+    image_index: np.ndarray  # (n_obs,) the image of each observation
+    offset_px: np.ndarray  # (M,) chosen offset along the surface normal, in pixels
+    residual: np.ndarray  # (M,) relative RMS residual of the one-facet fit
+    n_candidates: int
+    light_dir_cam: np.ndarray  # the light the normals were fitted under
+    refined_light_dir_cam: np.ndarray  # the light fitted to the pure samples with one k for the body (estimate.fit_pooled_k)
+    refined_minnaert_k: float  # that k
+
+    def save(self, path) -> None:
+        """One .npz with the arrays."""
+        obs = self.observations
+        files.savez(
+            path, points=self.points, normals=self.normals, surface_normals=self.surface_normals, point_index=obs.point_index,
+            normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness, image_index=self.image_index,
+            offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, light_dir_cam=self.light_dir_cam,
+            refined_light_dir_cam=self.refined_light_dir_cam, refined_minnaert_k=self.refined_minnaert_k,
+        )
+
+    @classmethod
+    def load(cls, path) -> "PureSampleCloud":
+        with np.load(path) as data:
+            observations = Observations(
+                point_index=data["point_index"], normal_cam=data["normal_cam"], view_cam=data["view_cam"], brightness=data["brightness"],
+                n_points=len(data["points"]),
+            )
+            return cls(
+                data["points"], data["normals"], data["surface_normals"], observations, data["image_index"], data["offset_px"], data["residual"],
+                int(data["n_candidates"]), data["light_dir_cam"], data["refined_light_dir_cam"], float(data["refined_minnaert_k"]),
+            )
+
+
+def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg, axis):
+    """One offset: pure samples of every candidate and the one-facet fit to them; (relative residual, fitted normals)."""
+    brightness, points_cam, inside = cloud_lib.sample_images(points[pair_point], pair_image, poses, intrinsics, images, purity_tolerance)
+    keep = inside & (brightness > 0)
+    counts = np.bincount(pair_point[keep], minlength=len(points))
+    keep &= counts[pair_point] >= min_observations
+    enough = counts >= min_observations
+    p = pair_point[keep]
+    rotations = cloud_lib.poses_of(poses, pair_image[keep])[:, :3, :3]
+    view_cam = -points_cam[keep] / np.linalg.norm(points_cam[keep], axis=1, keepdims=True)
+    start_albedo = np.where(enough, albedo, np.nan)
+    start_k = np.where(enough, minnaert_k, np.nan)
+    # The samples' own scatter is the purity tolerance: the prior weighs against that, not against the starting misfit.
+    noise_var = (purity_tolerance * np.median(brightness[keep])) ** 2 if keep.any() else 1.0
+    fitted_normals, fitted_albedo, fitted_k, active = refine_points(
+        p, rotations, view_cam, brightness[keep], normals, start_albedo, start_k, light_dir_cam,
+        n_iterations=30, min_observations=min_observations, normal_prior_deg=normal_prior_deg, fit_albedo_k=True, noise_var=noise_var, axis=axis,
+    )
+    residual = relative_residuals(p, rotations, view_cam, brightness[keep], fitted_normals, fitted_albedo, fitted_k, light_dir_cam)
+    residual[~active] = np.inf
+    return residual, fitted_normals
+
+
+def refine_by_pure_samples(
+    surface, poses: dict, intrinsics: Intrinsics, images: list[np.ndarray], light_dir_cam, albedo: float, minnaert_k: float, *,
+    n_candidates: int = 60000, max_offset_px: float = 2.0, offset_steps: int = 11, purity_tolerance: float = 1e-3,
+    max_residual: float = 1e-3, min_observations: int = 6, min_cos_emission: float = 0.2, normal_prior_deg: float = 30.0, seed: int = 0, axis=None,
+) -> PureSampleCloud:
+    """Points on ``surface`` moved and turned until their samples are pure and one facet explains them (module docstring).
+
+    ``surface``: (vertices, triangles) in the reconstruction frame, the frame
+    of ``poses`` (body-to-camera matrices by image index). ``light_dir_cam``,
+    ``albedo`` and ``minnaert_k``: the estimator's light and the set's
+    typical albedo and k, the starting point of each one-facet fit. Offsets
+    are in pixels (the candidate's footprint in the images that see it), so
+    the search is the same in any similarity frame. ``axis``: the spin axis
+    the normals turn about (``spin_axis``); None lets them tilt freely.
+    """
+    import open3d as o3d
+
+    vertices, triangles = surface
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
+    mesh.compute_vertex_normals()
+    o3d.utility.random.seed(seed)
+    sampled = mesh.sample_points_uniformly(number_of_points=n_candidates)
+    points = np.asarray(sampled.points)
+    normals = np.asarray(sampled.normals)
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    candidates = cloud_lib.OrientedCloud(points, normals, np.zeros(len(points), int))
+    pair_point, pair_image = cloud_lib.visible_pairs(candidates, poses, min_cos_emission, cloud_lib.default_occlusion_tolerance(points), surface)
+    # A candidate's footprint: its mean depth over the cameras that see it, over the focal length.
+    pair_poses = cloud_lib.poses_of(poses, pair_image)
+    depth = np.einsum("nj,nj->n", pair_poses[:, 2, :3], points[pair_point]) + pair_poses[:, 2, 3]
+    counts = np.bincount(pair_point, minlength=len(points))
+    footprint = np.bincount(pair_point, weights=depth, minlength=len(points)) / np.maximum(counts, 1) / intrinsics.focal_px
+
+    best_residual = np.full(len(points), np.inf)
+    best_offset = np.zeros(len(points))
+    best_normals = normals.copy()
+    for offset_px in np.linspace(-max_offset_px, max_offset_px, offset_steps) if offset_steps > 1 else [0.0]:
+        shifted = points + (offset_px * footprint)[:, None] * normals
+        residual, fitted_normals = _fit_candidates(
+            shifted, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k,
+            purity_tolerance, min_observations, normal_prior_deg, axis,
+        )
+        better = residual < best_residual
+        best_residual[better], best_offset[better], best_normals[better] = residual[better], offset_px, fitted_normals[better]
+    accepted = np.flatnonzero(best_residual <= max_residual)
+    log.info(
+        "pure-sample refinement: %d candidates, %d with >= %d pure samples at some offset, %d accepted (relative residual <= %g)",
+        len(points), int(np.isfinite(best_residual).sum()), min_observations, len(accepted), max_residual,
+    )
+    surface_normals = normals[accepted]
+    points = points[accepted] + (best_offset[accepted] * footprint[accepted])[:, None] * surface_normals
+    normals = best_normals[accepted]
+    in_accepted = np.full(len(candidates.points), -1)
+    in_accepted[accepted] = np.arange(len(accepted))
+    rows = in_accepted[pair_point] >= 0
+    point_index, image_index = in_accepted[pair_point[rows]], pair_image[rows]
+    brightness, points_cam, inside = cloud_lib.sample_images(points[point_index], image_index, poses, intrinsics, images, purity_tolerance)
+    rotations = cloud_lib.poses_of(poses, image_index)[:, :3, :3]
+    normal_cam = np.einsum("nij,nj->ni", rotations, normals[point_index])
+    view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
+    # The fitted normal may turn away from a camera that saw the surface's: that sample goes.
+    keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0.05)
+    counts = np.bincount(point_index[keep], minlength=len(points))
+    keep &= counts[point_index] >= min_observations
+    observations = Observations(
+        point_index=point_index[keep], normal_cam=normal_cam[keep], view_cam=view_cam[keep], brightness=brightness[keep], n_points=len(points),
+    )
+    # The light again, from the pure samples, with one k for the body (step 4, module docstring).
+    refined_light, refined_k = np.full(3, np.nan), np.nan
+    if observations.n_obs >= 3 + np.count_nonzero(observations.observations_per_point):  # an albedo per point, one k, the light
+        pooled = fit_pooled_k(observations, light_dir_cam, minnaert_k, min_observations=min_observations)
+        refined_light, refined_k = pooled.light_dir_cam, float(np.nanmedian(pooled.minnaert_k))
+        log.info("light from the pure samples with one k (%.4f): %.3f deg from the light the normals were fitted under", refined_k, float(angle_between_deg(refined_light, light_dir_cam)))
+    return PureSampleCloud(
+        points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points),
+        np.asarray(light_dir_cam, dtype=float), refined_light, refined_k,
+    )
+
