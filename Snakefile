@@ -43,11 +43,11 @@ localrules:
 
 # The optional outputs, each only when its part of the experiment is configured.
 OPTIONAL_TARGETS = [
-    *(["results/plots/noise_against_bound.png"] if "noise" in SWEEPS else []),
-    *(["results/tables/table2.csv", "results/plots/table2_errors.png"] if PRIOR_SETTINGS else []),
-    *(["results/tables/noise_monte_carlo.csv"] if MONTE_CARLO_SETS else []),
-    *(["results/tables/geometry_sensitivity.csv"] if SENSITIVITY_SETS else []),
-    *(["results/tables/model_mismatch.csv"] if MODEL_SETS else []),
+    *([rules.plot_noise.output.png] if "noise" in SWEEPS else []),
+    *([rules.tabulate_table2.output.csv, rules.plot_table2.output.stages] if PRIOR_SETTINGS else []),
+    *([rules.tabulate_noise_monte_carlo.output.csv] if MONTE_CARLO_SETS else []),
+    *([rules.tabulate_geometry_sensitivity.output.csv] if SENSITIVITY_SETS else []),
+    *([rules.tabulate_model_mismatch.output.csv] if MODEL_SETS else []),
 ]
 
 
@@ -56,6 +56,6 @@ rule all:
         rules.tabulate_table1.output,
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
-        expand("results/tables/{sweep}.csv", sweep=SWEEPS),
+        expand(rules.tabulate_sweep.output.csv, sweep=SWEEPS),
         OPTIONAL_TARGETS,
-        expand("results/plots/error_map_{map_name}.png", map_name=[m["name"] for m in config["surface_maps"]]),
+        expand(rules.plot_error_map.output.png, map_name=[m["name"] for m in config["surface_maps"]]),

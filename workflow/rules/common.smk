@@ -149,11 +149,6 @@ MODEL_SENSOR = (
     if MODEL_SETS and MODEL_SETTINGS["noise_level"] and config["noise_levels"]
     else None
 )
-MODEL_BENCHMARKS = [
-    *expand("benchmarks/render_model_set/{model_set}.tsv", model_set=MODEL_SETS),
-    *expand("benchmarks/fit_model_set/{model_set}.tsv", model_set=CROSS_FIT_SETS),
-    *expand("benchmarks/phase_sweep_set/{model_set}.tsv", model_set=SWEEP_SETS),
-]
 
 
 def model_set_law(wildcards):

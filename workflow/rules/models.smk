@@ -70,8 +70,8 @@ rule phase_sweep_set:
 rule tabulate_model_mismatch:
     input:
         rows=[
-            *expand("results/models/fits/{model_set}.json", model_set=CROSS_FIT_SETS),
-            *expand("results/models/phase_sweep/{model_set}.json", model_set=SWEEP_SETS),
+            *expand(rules.fit_model_set.output.json, model_set=CROSS_FIT_SETS),
+            *expand(rules.phase_sweep_set.output.json, model_set=SWEEP_SETS),
         ],
     output:
         csv=report("results/tables/model_mismatch.csv", caption="../report/model_mismatch.rst", category="Tables"),

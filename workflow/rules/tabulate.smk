@@ -47,7 +47,9 @@ rule tabulate_runtime:
             *expand(rules.register_cloud.benchmark, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(rules.refine_cloud.benchmark, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(rules.fit_cloud.benchmark, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
-            *MODEL_BENCHMARKS,
+            *expand(rules.render_model_set.benchmark, model_set=MODEL_SETS),
+            *expand(rules.fit_model_set.benchmark, model_set=CROSS_FIT_SETS),
+            *expand(rules.phase_sweep_set.benchmark, model_set=SWEEP_SETS),
         ],
         # The fits' own wall-clock seconds, kept out of the science tables.
         summaries=lambda wildcards: [
