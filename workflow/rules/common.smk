@@ -93,7 +93,7 @@ def split_noisy_set(set_id):
 
 def observation_geometry_of_set(wildcards):
     """The observation geometry of a set's light angle."""
-    return expand(rules.observation_geometry.output.npz, light_tag=SETS[wildcards.set_id].light_tag)
+    return rules.observation_geometry.output.npz.format(light_tag=SETS[wildcards.set_id].light_tag)
 
 
 def image_set(wildcards):

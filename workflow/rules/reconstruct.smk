@@ -99,8 +99,8 @@ rule tabulate_table2:
 rule plot_table2:
     input:
         table=rules.tabulate_table2.output.csv,
-        cloud_errors=expand(
-            rules.fit_cloud.output.errors, set_id=TABLE2_PLOT_SET, priors=PRIOR_SETTINGS[:1] or ["on"], method=TABLE2_PLOT_METHOD
+        cloud_errors=rules.fit_cloud.output.errors.format(
+            set_id=TABLE2_PLOT_SET, priors=PRIOR_SETTINGS[0] if PRIOR_SETTINGS else "on", method=TABLE2_PLOT_METHOD
         ),
     output:
         stages=report("results/plots/table2_errors.png", caption="../report/table2_plots.rst", category="Plots"),

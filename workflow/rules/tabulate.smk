@@ -88,7 +88,7 @@ rule tabulate_sweep:
 rule plot_error_map:
     input:
         shape=rules.prepare_shape.output.npz,
-        estimates=lambda wildcards: expand(rules.fit.output.estimates, set_id=error_map_set(wildcards), method=ESTIMATORS[0]),
+        estimates=lambda wildcards: rules.fit.output.estimates.format(set_id=error_map_set(wildcards), method=ESTIMATORS[0]),
     output:
         png=report("results/plots/error_map_{map_name}.png", caption="../report/error_map.rst", category="Plots"),
     params:
@@ -103,7 +103,7 @@ rule plot_error_map:
 
 rule plot_noise:
     input:
-        table=expand(rules.tabulate_sweep.output.csv, sweep="noise"),
+        table=rules.tabulate_sweep.output.csv.format(sweep="noise"),
     output:
         png=report("results/plots/noise_against_bound.png", caption="../report/noise_plot.rst", category="Plots"),
     log:
