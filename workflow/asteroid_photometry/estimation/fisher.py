@@ -10,7 +10,7 @@ and every point's (albedo, k), the Fisher information is ``J^T W J`` with
 ``J = df/dtheta`` at the true parameters and ``W = diag(1 / variance_j)``.
 Its inverse bounds the covariance of any unbiased estimator (Cramer-Rao). The
 matrix is an arrow (a 2x2 light block, a 2x2 block per point and their
-couplings), so it is assembled in one streamed pass (the same one the
+couplings), so it is assembled in one streamed pass (``blocks``, the one the
 ``varpro`` estimator uses for its Gauss-Newton steps) and inverted through
 the Schur complement (``estimate.arrow_covariance``): the light's 2x2
 covariance bound and every point's marginal 2x2 bound, without ever forming
@@ -34,7 +34,7 @@ import numpy as np
 
 from asteroid_photometry.estimation.arrow import arrow_covariance
 from asteroid_photometry.estimation.core import angle_between_deg, light_std_deg, Observations, tangent_from_light
-from asteroid_photometry.estimation.varpro import brightness_normal_equations, PointBlocks
+from asteroid_photometry.estimation.blocks import brightness_normal_equations, PointBlocks
 from asteroid_photometry.reflectance.laws import minnaert_brightness
 
 __all__ = ["FisherBlocks", "fisher_blocks", "cramer_rao_bounds", "efficiency"]
