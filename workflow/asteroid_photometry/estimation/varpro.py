@@ -33,10 +33,11 @@ size of the data is made per iteration.
 Stages of :func:`fit_varpro`:
 
 1. start: a grid over the light's tangent coordinates on a subsample of
-   points, scored by the brightness cost with closed-form per-point
-   parameters (as ``estimate.search_light``, but all lights of the grid in
-   one vectorised evaluation), then the reduced problem on a larger
-   subsample; skipped when ``light_init`` is given;
+   points (:func:`~.light_search.grid_search`, the search
+   ``koizumi.search_light`` also makes), scored by the brightness cost with
+   closed-form per-point parameters, all lights of a batch in one
+   vectorised evaluation; then the reduced problem on a larger subsample;
+   skipped when ``light_init`` is given;
 2. the reduced (log-space) problem on all points;
 3. ``polish``: joint Gauss-Newton / Levenberg-Marquardt on the brightness
    residuals;
@@ -85,6 +86,7 @@ from asteroid_photometry.estimation.core import (
     tangent_from_light,
 )
 from asteroid_photometry.estimation.iwano import fit_iwano_linear
+from asteroid_photometry.estimation.light_search import evenly_spaced, grid_search
 
 __all__ = ["LOSSES", "VarproResult", "fit_varpro"]
 
@@ -374,8 +376,11 @@ def _solve_joint(layout, tangent, albedo, minnaert_k, valid, loss, scale, varian
 def _profile_costs(layout: PointBlocks, tangents: np.ndarray) -> np.ndarray:
     """Brightness cost of many lights at once, each with closed-form log-space albedo and k per point.
 
-    The same score as ``estimate.profile_cost`` (k clipped to
-    ``INIT_K_RANGE``, unlit rows predicted dark), vectorised over lights.
+    The score of ``koizumi.profile_cost`` (k clipped to ``INIT_K_RANGE``),
+    vectorised over lights, except that unlit rows are predicted dark, the
+    weights carry ``1 / sigma**2`` and a singular point gets k = 1 with its
+    own rows' level (albedo 1 with none) rather than the others' mean albedo:
+    the two are not bit-for-bit the same score.
     """
     lights = light_from_tangent(tangents)  # (L, 3)
     n_lights = len(lights)
@@ -410,34 +415,13 @@ def _profile_costs(layout: PointBlocks, tangents: np.ndarray) -> np.ndarray:
 
 
 def _grid_search(layout: PointBlocks, guess_tangent, half_width=0.8, n_grid=17, n_refine=2, batch_elements=1 << 18):
-    """Coarse-to-fine grid over tangent coordinates, as ``estimate.search_light``, scored in batches of lights.
+    """:func:`~.light_search.grid_search` by :func:`_profile_costs`, each level's best node its own, lights scored in batches."""
 
-    The grid covers ``[-half_width, half_width]**2`` with ``n_grid**2``
-    nodes plus ``guess_tangent``; each refinement searches a 7x7 grid over
-    +-1 cell around the best node with a 3x finer step.
-    """
-
-    def best_of(candidates):
+    def score(candidates):
         batch = max(1, batch_elements // max(layout.n_rows, 1))
-        costs = np.concatenate([_profile_costs(layout, candidates[i : i + batch]) for i in range(0, len(candidates), batch)])
-        costs = np.where(np.isfinite(costs), costs, np.inf)
-        return candidates[int(np.argmin(costs))]
+        return np.concatenate([_profile_costs(layout, candidates[i : i + batch]) for i in range(0, len(candidates), batch)])
 
-    offsets = np.linspace(-half_width, half_width, n_grid)
-    grid = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2)
-    best = best_of(grid if guess_tangent is None else np.vstack([guess_tangent, grid]))
-    step = 2.0 * half_width / (n_grid - 1)
-    for _ in range(n_refine):
-        offsets = np.linspace(-step, step, 7)
-        best = best_of(best + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2))
-        step /= 3.0
-    return best
-
-
-def _evenly_spaced(ids, n):
-    if ids.size <= n:
-        return ids
-    return ids[np.linspace(0, ids.size - 1, n).astype(np.int64)]
+    return grid_search(score, guess_tangent, half_width=half_width, n_grid=n_grid, n_refine=n_refine, keep_best=False)
 
 
 def _lambert_guess(obs: Observations, rows):
@@ -657,8 +641,8 @@ def fit_varpro(
     tick = time.perf_counter()
     search_log = _SolveLog()
     if light_init is None or (isinstance(light_init, str) and light_init == "iwano"):
-        sub_ids = _evenly_spaced(np.arange(layout.n_points), search_points)
-        grid_layout = layout.subset(_evenly_spaced(sub_ids, grid_points))
+        sub_ids = evenly_spaced(np.arange(layout.n_points), search_points)
+        grid_layout = layout.subset(evenly_spaced(sub_ids, grid_points))
         guess = _lambert_guess(obs, grid_layout.rows())
         if light_init is None:
             tangent = _grid_search(grid_layout, guess)
