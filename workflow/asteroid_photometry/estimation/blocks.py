@@ -369,7 +369,7 @@ def joint_pass(layout: PointBlocks, tangent, albedo, minnaert_k, loss: Loss, sca
         with np.errstate(over="ignore", invalid="ignore"):  # a wild trial k: infinite cost, step rejected
             shape_term = k[:, None] * x
             shape_term -= log_cos_o
-            np.exp(shape_term, out=shape_term)  # cos_i^k cos_o^(k-1)
+            np.exp(shape_term, out=shape_term)  # cos_i^k cos_o^(k-1): exp(k x - log cos_o), not laws.minnaert_factor's bits
             residual = rho[:, None] * shape_term
             residual -= brightness
         base_weight = layout.weight(chunk)

@@ -26,6 +26,7 @@ from asteroid_photometry.estimation.core import (
 )
 from asteroid_photometry.estimation.iwano import fit_iwano_linear
 from asteroid_photometry.estimation.light_search import evenly_spaced, grid_search
+from asteroid_photometry.reflectance.laws import minnaert_factor
 
 # --------------------------------------------------------------------------
 # Koizumi et al.: joint non-linear fit
@@ -85,7 +86,7 @@ class KoizumiProblem:
         log_cos_i = np.log(cos_i)
         k_row = k[self.local]
         with np.errstate(over="ignore"):  # a wild trial k may overflow: infinite cost, step rejected
-            shape_term = np.exp(k_row * log_cos_i + (k_row - 1.0) * self.log_cos_o)  # cos_i^k cos_o^(k-1)
+            shape_term = minnaert_factor(k_row, log_cos_i, self.log_cos_o)  # cos_i^k cos_o^(k-1)
         model = albedo[self.local] * shape_term
         residual = model - self.brightness
         if not with_jacobian:
@@ -501,7 +502,8 @@ def fit_pooled_k(obs: Observations, light_init, minnaert_k_init: float, *, min_o
     if not np.isfinite(minnaert_k_init) or minnaert_k_init <= 0:
         raise ValueError(f"fit_pooled_k: minnaert_k_init must be a positive number, got {minnaert_k_init!r}")
     light_init = light_init / np.linalg.norm(light_init)
-    # Start: each point's albedo by least squares under the initial light and k.
+    # Start: each point's albedo by least squares under the initial light and k (the Minnaert law in a
+    # mixed power/log form of its own; laws.minnaert_factor would change its last bits).
     shape_term = np.maximum(problem.normal @ light_init, problem.cos_floor) ** minnaert_k_init * np.exp((minnaert_k_init - 1.0) * problem.log_cos_o)
     albedo0 = np.bincount(problem.local, shape_term * problem.brightness, m) / np.bincount(problem.local, shape_term**2, m)
     x0 = np.concatenate([tangent_from_light(light_init), albedo0, [minnaert_k_init]])

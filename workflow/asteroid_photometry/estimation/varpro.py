@@ -180,7 +180,7 @@ def _reduced_pass(layout: PointBlocks, tangent, loss: Loss, scale: float, previo
             for sweep_loss in sweeps:
                 if fit is not None:
                     line = fit[0][:, None] - fit[1][:, None] * fit[2][:, None], fit[1][:, None]  # log albedo, k
-                with np.errstate(over="ignore"):
+                with np.errstate(over="ignore"):  # Minnaert in log space (x = log cos_i + log cos_o); not laws.minnaert_factor's bits
                     model = np.exp(line[0] + line[1] * x - log_cos_o)
                 z = (brightness - model) * np.sqrt(inv_var) / scale
                 weight = inv_var * model * model * sweep_loss.weight_and_rho(z)[0]
@@ -237,7 +237,7 @@ def _keep_pass(layout: PointBlocks, tangent, albedo, minnaert_k, threshold, keep
         log_cos_o = chunk.rows_of("log_cos_o")
         cos_i = (frame[0] @ chunk.normal).reshape(chunk.shape)
         x = np.log(np.maximum(cos_i, COS_INCIDENCE_FLOOR)) + log_cos_o
-        with np.errstate(over="ignore", invalid="ignore"):
+        with np.errstate(over="ignore", invalid="ignore"):  # the joint pass's Minnaert form (blocks.joint_pass)
             model = albedo[sl, None] * np.exp(minnaert_k[sl, None] * x - log_cos_o)
         inv_var = chunk.rows_of("inv_var")
         size = np.abs(model - chunk.rows_of("brightness")) * np.sqrt(layout.inv_var if inv_var is None else inv_var)
@@ -406,7 +406,7 @@ def _profile_costs(layout: PointBlocks, tangents: np.ndarray) -> np.ndarray:
             regular = (s0 > 0) & (sxx > 1e-12 * s0)
             k = np.clip(np.where(regular, sxy / sxx, 1.0), *INIT_K_RANGE)
             log_albedo = np.where(s0 > 0, y_mean - k * x_mean, 0.0)
-            model = np.exp(log_albedo[..., None] + k[..., None] * x - log_cos_o)
+            model = np.exp(log_albedo[..., None] + k[..., None] * x - log_cos_o)  # Minnaert in log space, not laws.minnaert_factor's bits
         model[~usable] = 0.0
         model -= brightness
         model *= model
