@@ -131,6 +131,34 @@ def _weighted_line(weight, x, y, ones):
     return y_mean, k, x_mean, s0, sxx, dx, dy, ok
 
 
+def _robust_line(loss: Loss, scale, previous_line, base_weight, inv_var, brightness, log_cos_o, x, y, ones):
+    """IRLS per point of a chunk's log-space lines under a robust loss; returns the last weights and :func:`_weighted_line`.
+
+    The sweeps start from ``previous_line`` (log albedo, k, each (P, 1)), or
+    from a plain fit made robust with Huber weights first (convex) so that a
+    redescending loss starts in the right basin. Residuals and weights come
+    from the model brightness, not the observed one: an outlier 3x too
+    bright would otherwise also get 9x the weight b**2. ``inv_var``: ``1 /
+    sigma**2`` of the usable rows (zero elsewhere).
+    """
+    if previous_line is None:
+        fit = _weighted_line(base_weight, x, y, ones)
+        sweeps = [HUBER] * ROBUST_START_SWEEPS + [loss] * ROBUST_SWEEPS
+    else:
+        fit = None
+        line = previous_line
+        sweeps = [loss] * ROBUST_SWEEPS
+    for sweep_loss in sweeps:
+        if fit is not None:
+            line = fit[0][:, None] - fit[1][:, None] * fit[2][:, None], fit[1][:, None]  # log albedo, k
+        with np.errstate(over="ignore"):  # Minnaert in log space (x = log cos_i + log cos_o); not laws.minnaert_factor's bits
+            model = np.exp(line[0] + line[1] * x - log_cos_o)
+        z = (brightness - model) * np.sqrt(inv_var) / scale
+        weight = inv_var * model * model * sweep_loss.weight_and_rho(z)[0]
+        fit = _weighted_line(weight, x, y, ones)
+    return weight, fit
+
+
 def _reduced_pass(layout: PointBlocks, tangent, loss: Loss, scale: float, previous=None, sample_stride=0):
     """The log-space problem at a light: closed-form log albedo and k per point, and the light's Schur blocks.
 
@@ -164,27 +192,8 @@ def _reduced_pass(layout: PointBlocks, tangent, loss: Loss, scale: float, previo
         base_weight *= layout.weight(chunk)
         base_weight *= lit & positive
         if loss.robust:
-            # IRLS per point, inside the chunk: from the previous parameters, or from a plain fit
-            # made robust with Huber weights first (convex) so that a redescending loss starts
-            # in the right basin.
-            if previous is None:
-                fit = _weighted_line(base_weight, x, y, ones)
-                sweeps = [HUBER] * ROBUST_START_SWEEPS + [loss] * ROBUST_SWEEPS
-            else:
-                fit = None
-                line = previous[0][sl, None], previous[1][sl, None]
-                sweeps = [loss] * ROBUST_SWEEPS
-            # Residuals and weights from the model brightness, not the observed one: an outlier
-            # 3x too bright would otherwise also get 9x the weight b**2.
-            inv_var = layout.weight(chunk) * (lit & positive)
-            for sweep_loss in sweeps:
-                if fit is not None:
-                    line = fit[0][:, None] - fit[1][:, None] * fit[2][:, None], fit[1][:, None]  # log albedo, k
-                with np.errstate(over="ignore"):  # Minnaert in log space (x = log cos_i + log cos_o); not laws.minnaert_factor's bits
-                    model = np.exp(line[0] + line[1] * x - log_cos_o)
-                z = (brightness - model) * np.sqrt(inv_var) / scale
-                weight = inv_var * model * model * sweep_loss.weight_and_rho(z)[0]
-                fit = _weighted_line(weight, x, y, ones)
+            previous_line = None if previous is None else (previous[0][sl, None], previous[1][sl, None])
+            weight, fit = _robust_line(loss, scale, previous_line, base_weight, layout.weight(chunk) * (lit & positive), brightness, log_cos_o, x, y, ones)
         else:
             weight = base_weight
             fit = _weighted_line(weight, x, y, ones)
@@ -502,6 +511,241 @@ def _inverse_variance(obs: Observations, sigma):
     return 1.0 / sigma**2
 
 
+# --------------------------------------------------------------------------
+# The estimator's stages
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class _Estimate:
+    """Light (tangent coordinates), flat per-point albedo and k, the points the log-space fit determined, and the last pass's sums."""
+
+    tangent: np.ndarray
+    albedo: np.ndarray
+    minnaert_k: np.ndarray
+    valid: np.ndarray
+    sums: PassSums
+
+
+@dataclasses.dataclass
+class _Solver:
+    """What the stages of :func:`fit_varpro` share: the layout, the noise model, the losses and the tolerances.
+
+    ``loss`` is the loss asked for, ``fit_loss`` the one fitted now: Huber
+    while outliers are looked for under a linear ``loss`` (a least-squares
+    fit bends towards outliers and hides them), ``loss`` once rejection has
+    started. ``stride``: every so-many |standardized residual| of a pass is
+    kept for a MAD (0: none). ``reduced_tol``: the step tolerance of the
+    log-space problem on all points, fixed at the start.
+    """
+
+    obs: Observations
+    layout: PointBlocks
+    inv_var: float | np.ndarray
+    sigma_known: bool
+    loss: Loss
+    fit_loss: Loss
+    stride: int
+    scale_floor: float
+    max_iterations: int
+    step_tol: float
+    polish: bool
+    reduced_tol: float = 0.0
+
+    @classmethod
+    def create(cls, obs, *, sigma, loss, f_scale, reject_outliers, rejection_threshold, min_observations, max_iterations, step_tol, polish, chunk_rows):
+        loss_fn = Loss(loss, f_scale)
+        if not rejection_threshold > 0:
+            raise ValueError(f"fit_varpro: rejection_threshold must be > 0, got {rejection_threshold!r}")
+        inv_var = _inverse_variance(obs, sigma)
+        layout = PointBlocks(obs, min_observations=min_observations, inv_var=inv_var, chunk_rows=chunk_rows)
+        if layout.n_points == 0 or layout.n_rows < layout.n_params:
+            raise ValueError(
+                f"fit_varpro: {layout.n_rows} usable observations of {layout.n_points} points "
+                f"cannot determine {layout.n_params} unknowns"
+            )
+        fit_loss = HUBER if reject_outliers and not loss_fn.robust else loss_fn
+        solver = cls(
+            obs=obs,
+            layout=layout,
+            inv_var=inv_var,
+            sigma_known=sigma is not None,
+            loss=loss_fn,
+            fit_loss=fit_loss,
+            stride=max(1, layout.n_rows // MAD_SAMPLES) if (fit_loss.robust or reject_outliers) else 0,
+            # Noise-scale floor in standardized units, so that noiseless data never divide by zero.
+            scale_floor=SCALE_FLOOR_RELATIVE * layout.typical_brightness,
+            max_iterations=max_iterations,
+            step_tol=step_tol,
+            polish=polish,
+        )
+        # The reduced problem only has to bring the polish close: 0.1 sigma of the light is plenty.
+        solver.reduced_tol = max(solver.step_tolerance(), 1e-2) if polish else solver.step_tolerance()
+        return solver
+
+    @property
+    def estimates_scale(self) -> bool:
+        """Whether the robust loss's scale comes from a MAD (sigma unknown)."""
+        return self.fit_loss.robust and not self.sigma_known
+
+    def variance_scale(self, sums) -> float:
+        """The noise variance in units of the weights: 1 if sigma is known, else estimated."""
+        if self.sigma_known:
+            return 1.0
+        dof = max(sums.n_rows - sums.n_params, 1)
+        value = sums.mad_sigma() ** 2 if self.fit_loss.robust else sums.chi2 / dof
+        return max(value, self.scale_floor**2)
+
+    def robust_scale(self, sums) -> float:
+        return max(sums.mad_sigma(), self.scale_floor) if self.estimates_scale else 1.0
+
+    def step_tolerance(self) -> float:
+        # IRLS converges linearly: with a robust loss, stop at steps of 0.01 sigma.
+        return max(self.step_tol, ROBUST_STEP_TOL) if self.fit_loss.robust else self.step_tol
+
+    def solve_reduced(self, layout, tangent, tol, log):
+        """The log-space problem on ``layout`` (all points or a subsample) from ``tangent``."""
+        scale = 1.0
+        if self.estimates_scale:  # the scale from the non-robust residuals at the start
+            scale = self.robust_scale(_reduced_pass(layout, tangent, self.fit_loss, 1.0, None, max(1, layout.n_rows // MAD_SAMPLES))[0])
+            log.passes += 1
+        return _solve_reduced(layout, tangent, self.fit_loss, scale, self.variance_scale, self.max_iterations, tol, log, self.stride)
+
+    def solve_joint(self, estimate: _Estimate, scale, log) -> _Estimate:
+        """The joint problem on all points, in rounds of the robust scale (one round when it is fixed)."""
+        tangent, albedo, minnaert_k = estimate.tangent, estimate.albedo, estimate.minnaert_k
+        for _ in range(MAX_SCALE_ROUNDS):
+            tangent, albedo, minnaert_k, sums = _solve_joint(
+                self.layout, tangent, albedo, minnaert_k, estimate.valid, self.fit_loss, scale, self.variance_scale,
+                self.max_iterations, self.step_tolerance(), log, self.stride,
+            )
+            new_scale = self.robust_scale(sums)
+            if not self.estimates_scale or abs(new_scale - scale) <= SCALE_ROUND_CHANGE * scale:
+                break
+            scale = new_scale
+        return _Estimate(tangent, albedo, minnaert_k, estimate.valid, sums)
+
+
+def _start_light(solver: _Solver, light_init, search_points, grid_points, log):
+    """Stage 1: the starting light's tangent coordinates (grid search or Iwano's guess, then a subsample), or ``light_init``'s."""
+    layout = solver.layout
+    if light_init is None or (isinstance(light_init, str) and light_init == "iwano"):
+        sub_ids = evenly_spaced(np.arange(layout.n_points), search_points)
+        grid_layout = layout.subset(evenly_spaced(sub_ids, grid_points))
+        guess = _lambert_guess(solver.obs, grid_layout.rows())
+        if light_init is None:
+            tangent = _grid_search(grid_layout, guess)
+        elif guess is None:
+            raise ValueError("fit_varpro: Iwano's linear fit failed on the subsample (light_init='iwano')")
+        else:
+            tangent = guess
+        if layout.n_points > sub_ids.size:
+            tangent, _ = solver.solve_reduced(layout.subset(sub_ids), tangent, solver.step_tol, log)
+        return tangent
+    if isinstance(light_init, str):
+        raise ValueError(f"fit_varpro: light_init must be None, 'iwano' or a (3,) vector, got {light_init!r}")
+    light = np.asarray(light_init, dtype=np.float64)
+    if light.shape != (3,) or not np.all(np.isfinite(light)):
+        raise ValueError(f"fit_varpro: light_init must be a finite (3,) vector, got {light_init!r}")
+    return tangent_from_light(light / np.linalg.norm(light))
+
+
+def _reduced_estimate(solver: _Solver, tangent, log) -> _Estimate:
+    """Stage 2: the reduced (log-space) problem on all points."""
+    tangent, (sums, log_albedo, minnaert_k, valid) = solver.solve_reduced(solver.layout, tangent, solver.reduced_tol, log)
+    return _Estimate(tangent, np.exp(log_albedo), minnaert_k, valid, sums)
+
+
+def _polish(solver: _Solver, estimate: _Estimate, log) -> _Estimate:
+    """Stage 3: the joint problem on the brightness residuals, or (``polish`` False) only one joint pass at the estimate."""
+    scale = solver.robust_scale(estimate.sums)
+    if solver.polish:
+        return solver.solve_joint(estimate, scale, log)
+    sums = joint_pass(solver.layout, estimate.tangent, estimate.albedo, estimate.minnaert_k, solver.fit_loss, scale, solver.stride)
+    log.passes += 1
+    return dataclasses.replace(estimate, sums=sums)
+
+
+def _reject_outliers(solver: _Solver, estimate: _Estimate, rejection_threshold, max_rounds, log) -> _Estimate:
+    """Stage 4: reject observations beyond ``rejection_threshold`` MAD sigmas and refit, until nothing changes."""
+    for _ in range(int(max_rounds)):
+        threshold = rejection_threshold * max(estimate.sums.mad_sigma(), solver.scale_floor)
+        keep_rows = np.zeros(solver.obs.n_obs, bool)
+        _keep_pass(solver.layout, estimate.tangent, estimate.albedo, estimate.minnaert_k, threshold, keep_rows)
+        log.passes += 1
+        if solver.layout.set_keep(keep_rows) == 0 and solver.fit_loss is solver.loss:
+            break
+        solver.fit_loss = solver.loss  # the refits use the loss asked for (the Huber fit only found the outliers)
+        estimate = _polish(solver, estimate if solver.polish else _reduced_estimate(solver, estimate.tangent, log), log)
+    return estimate
+
+
+def _uncertainty(solver: _Solver, estimate: _Estimate) -> dict:
+    """Stage 5: the covariances from ``J^T W J`` at the estimate, scaled by the noise variance; a dict of result fields."""
+    sums = estimate.sums
+    point_valid = estimate.valid & _point_valid(sums)
+    light_block, point_blocks, couplings, _, _ = _masked_blocks(sums, point_valid)
+    light_cov, var_albedo, var_k, cov_albedo_k = arrow_covariance(light_block, point_blocks, couplings)
+    n_params_used = 2 + 2 * int(np.count_nonzero(point_valid))
+    dof = max(sums.n_rows - n_params_used, 1)
+    noise_variance = solver.variance_scale(sums)
+    light_cov = light_cov * noise_variance
+    with np.errstate(invalid="ignore"):
+        albedo_std, k_std = np.sqrt(var_albedo * noise_variance), np.sqrt(var_k * noise_variance)
+    if solver.sigma_known:
+        noise_sigma = float(np.sqrt(1.0 / solver.inv_var)) if np.ndim(solver.inv_var) == 0 else float("nan")
+    else:
+        noise_sigma = float(np.sqrt(noise_variance))
+    return dict(
+        point_valid=point_valid,
+        albedo_std=albedo_std,
+        minnaert_k_std=k_std,
+        albedo_k_cov=cov_albedo_k * noise_variance,
+        light_cov_tangent=light_cov,
+        noise_sigma=noise_sigma,
+        reduced_chi2=float(sums.chi2 / dof),
+        observation_used=solver.layout.rows_used(solver.obs.n_obs, point_valid),
+    )
+
+
+def _result(solver: _Solver, estimate: _Estimate, uncertainty: dict, logs, start, seconds, passes) -> VarproResult:
+    """The :class:`VarproResult`: per-point values scattered to the Observations' points (NaN where not determined)."""
+    search_log, reduced_log, joint_log = logs
+    point_valid = uncertainty.pop("point_valid")
+
+    def per_point(values):
+        return solver.layout.per_point(np.where(point_valid, values, np.nan))
+
+    messages = [reduced_log.message] + ([joint_log.message] if solver.polish else [])
+    success = reduced_log.success and (joint_log.success if solver.polish else True)
+    return VarproResult(
+        method="varpro",
+        light_dir_cam=light_from_tangent(estimate.tangent),
+        albedo=per_point(estimate.albedo),
+        minnaert_k=per_point(estimate.minnaert_k),
+        n_points_fitted=int(np.count_nonzero(point_valid)),
+        n_obs=int(np.count_nonzero(uncertainty["observation_used"])),
+        cost=float(estimate.sums.cost),
+        n_iterations=search_log.iterations + reduced_log.iterations + joint_log.iterations,
+        nfev=reduced_log.passes + joint_log.passes,
+        success=bool(success),
+        message="; ".join(message for message in messages if message),
+        fit_seconds=time.perf_counter() - start,
+        solver="variable projection (log space) + joint Gauss-Newton polish, block-Schur (numpy, streamed)",
+        albedo_std=per_point(uncertainty.pop("albedo_std")),
+        minnaert_k_std=per_point(uncertainty.pop("minnaert_k_std")),
+        albedo_k_cov=per_point(uncertainty.pop("albedo_k_cov")),
+        light_std_deg=light_std_deg(estimate.tangent, uncertainty["light_cov_tangent"]),
+        sigma_estimated=not solver.sigma_known,
+        weighted_cost=float(estimate.sums.objective),
+        n_rejected=solver.layout.n_rejected(),
+        loss=solver.loss.name,
+        stage_seconds=seconds,
+        stage_passes=passes,
+        **uncertainty,
+    )
+
+
 def fit_varpro(
     obs: Observations,
     *,
@@ -578,177 +822,31 @@ def fit_varpro(
         the accepted and rejected steps of both stages.
     """
     start = time.perf_counter()
-    loss_fn = Loss(loss, f_scale)
-    if not rejection_threshold > 0:
-        raise ValueError(f"fit_varpro: rejection_threshold must be > 0, got {rejection_threshold!r}")
-    inv_var = _inverse_variance(obs, sigma)
-    sigma_known = sigma is not None
-    layout = PointBlocks(obs, min_observations=min_observations, inv_var=inv_var, chunk_rows=chunk_rows)
-    if layout.n_points == 0 or layout.n_rows < layout.n_params:
-        raise ValueError(
-            f"fit_varpro: {layout.n_rows} usable observations of {layout.n_points} points "
-            f"cannot determine {layout.n_params} unknowns"
-        )
-    # With outlier rejection the outliers are found after a robust (Huber) fit even when the final
-    # fit is plain least squares: a least-squares fit bends towards outliers and hides them.
-    fit_loss = HUBER if reject_outliers and not loss_fn.robust else loss_fn
-    stride = max(1, layout.n_rows // MAD_SAMPLES) if (fit_loss.robust or reject_outliers) else 0
-    # Noise-scale floor in standardized units, so that noiseless data never divide by zero.
-    scale_floor = SCALE_FLOOR_RELATIVE * layout.typical_brightness
-
-    def estimate_scale():
-        """Whether the robust loss's scale comes from a MAD (sigma unknown)."""
-        return fit_loss.robust and not sigma_known
-
-    def variance_scale(sums):
-        """The noise variance in units of the weights: 1 if sigma is known, else estimated."""
-        if sigma_known:
-            return 1.0
-        dof = max(sums.n_rows - sums.n_params, 1)
-        value = sums.mad_sigma() ** 2 if fit_loss.robust else sums.chi2 / dof
-        return max(value, scale_floor**2)
-
-    def robust_scale(sums):
-        return max(sums.mad_sigma(), scale_floor) if estimate_scale() else 1.0
-
-    def step_tolerance():
-        # IRLS converges linearly: with a robust loss, stop at steps of 0.01 sigma.
-        return max(step_tol, ROBUST_STEP_TOL) if fit_loss.robust else step_tol
-
-    def solve_reduced(layout, tangent, tol, log):
-        scale = 1.0
-        if estimate_scale():  # the scale from the non-robust residuals at the start
-            scale = robust_scale(_reduced_pass(layout, tangent, fit_loss, 1.0, None, max(1, layout.n_rows // MAD_SAMPLES))[0])
-            log.passes += 1
-        return _solve_reduced(layout, tangent, fit_loss, scale, variance_scale, max_iterations, tol, log, stride)
-
-    def solve_joint(tangent, albedo, minnaert_k, valid, scale, log):
-        for _ in range(MAX_SCALE_ROUNDS):  # rounds of the robust scale (one round when it is fixed)
-            tangent, albedo, minnaert_k, sums = _solve_joint(
-                layout, tangent, albedo, minnaert_k, valid, fit_loss, scale, variance_scale, max_iterations, step_tolerance(), log, stride
-            )
-            new_scale = robust_scale(sums)
-            if not estimate_scale() or abs(new_scale - scale) <= SCALE_ROUND_CHANGE * scale:
-                break
-            scale = new_scale
-        return tangent, albedo, minnaert_k, sums
-
-    # The reduced problem only has to bring the polish close: 0.1 sigma of the light is plenty.
-    reduced_tol = max(step_tolerance(), 1e-2) if polish else step_tolerance()
+    solver = _Solver.create(
+        obs, sigma=sigma, loss=loss, f_scale=f_scale, reject_outliers=reject_outliers, rejection_threshold=rejection_threshold,
+        min_observations=min_observations, max_iterations=max_iterations, step_tol=step_tol, polish=polish, chunk_rows=chunk_rows,
+    )
+    logs = search_log, reduced_log, joint_log = _SolveLog(), _SolveLog(), _SolveLog()
     seconds, passes = {}, {}
 
-    # -- start: grid search and the reduced problem on a subsample -------------
     tick = time.perf_counter()
-    search_log = _SolveLog()
-    if light_init is None or (isinstance(light_init, str) and light_init == "iwano"):
-        sub_ids = evenly_spaced(np.arange(layout.n_points), search_points)
-        grid_layout = layout.subset(evenly_spaced(sub_ids, grid_points))
-        guess = _lambert_guess(obs, grid_layout.rows())
-        if light_init is None:
-            tangent = _grid_search(grid_layout, guess)
-        elif guess is None:
-            raise ValueError("fit_varpro: Iwano's linear fit failed on the subsample (light_init='iwano')")
-        else:
-            tangent = guess
-        if layout.n_points > sub_ids.size:
-            sub_layout = layout.subset(sub_ids)
-            tangent, _ = solve_reduced(sub_layout, tangent, step_tol, search_log)
-    elif isinstance(light_init, str):
-        raise ValueError(f"fit_varpro: light_init must be None, 'iwano' or a (3,) vector, got {light_init!r}")
-    else:
-        light = np.asarray(light_init, dtype=np.float64)
-        if light.shape != (3,) or not np.all(np.isfinite(light)):
-            raise ValueError(f"fit_varpro: light_init must be a finite (3,) vector, got {light_init!r}")
-        tangent = tangent_from_light(light / np.linalg.norm(light))
+    tangent = _start_light(solver, light_init, search_points, grid_points, search_log)
     seconds["start"] = time.perf_counter() - tick
     passes["start_subsample"] = search_log.passes
 
-    # -- the reduced (log-space) problem on all points --------------------------
     tick = time.perf_counter()
-    reduced_log = _SolveLog()
-    tangent, (sums, log_albedo, minnaert_k, valid) = solve_reduced(layout, tangent, reduced_tol, reduced_log)
-    albedo = np.exp(log_albedo)
+    estimate = _reduced_estimate(solver, tangent, reduced_log)
     seconds["reduced"] = time.perf_counter() - tick
     passes["reduced"] = reduced_log.passes
-    messages = [reduced_log.message]
-    success = reduced_log.success
 
-    # -- polish (joint, brightness residuals) and outlier rejection -------------
     tick = time.perf_counter()
-    joint_log = _SolveLog()
-    if polish:
-        tangent, albedo, minnaert_k, sums = solve_joint(tangent, albedo, minnaert_k, valid, robust_scale(sums), joint_log)
-    else:
-        sums = joint_pass(layout, tangent, albedo, minnaert_k, fit_loss, robust_scale(sums), stride)
-        joint_log.passes += 1
-    for _ in range(int(max_rejection_rounds) if reject_outliers else 0):
-        threshold = rejection_threshold * max(sums.mad_sigma(), scale_floor)
-        keep_rows = np.zeros(obs.n_obs, bool)
-        _keep_pass(layout, tangent, albedo, minnaert_k, threshold, keep_rows)
-        joint_log.passes += 1
-        if layout.set_keep(keep_rows) == 0 and fit_loss is loss_fn:
-            break
-        fit_loss = loss_fn  # the refits use the loss asked for (the Huber fit only found the outliers)
-        if polish:
-            tangent, albedo, minnaert_k, sums = solve_joint(tangent, albedo, minnaert_k, valid, robust_scale(sums), joint_log)
-        else:
-            tangent, (sums, log_albedo, minnaert_k, valid) = solve_reduced(layout, tangent, reduced_tol, joint_log)
-            albedo = np.exp(log_albedo)
-            sums = joint_pass(layout, tangent, albedo, minnaert_k, fit_loss, robust_scale(sums), stride)
-            joint_log.passes += 1
+    estimate = _polish(solver, estimate, joint_log)
+    if reject_outliers:
+        estimate = _reject_outliers(solver, estimate, rejection_threshold, max_rejection_rounds, joint_log)
     seconds["polish"] = time.perf_counter() - tick
     passes["polish"] = joint_log.passes
-    if polish:
-        messages.append(joint_log.message)
-        success = success and joint_log.success
 
-    # -- uncertainty from J^T W J at the estimate --------------------------------
     tick = time.perf_counter()
-    point_valid = valid & _point_valid(sums)
-    light_block, point_blocks, couplings, _, _ = _masked_blocks(sums, point_valid)
-    light_cov, var_albedo, var_k, cov_albedo_k = arrow_covariance(light_block, point_blocks, couplings)
-    n_params_used = 2 + 2 * int(np.count_nonzero(point_valid))
-    dof = max(sums.n_rows - n_params_used, 1)
-    noise_variance = variance_scale(sums)
-    light_cov = light_cov * noise_variance
-    with np.errstate(invalid="ignore"):
-        albedo_std, k_std = np.sqrt(var_albedo * noise_variance), np.sqrt(var_k * noise_variance)
-    if sigma_known:
-        noise_sigma = float(np.sqrt(1.0 / inv_var)) if np.ndim(inv_var) == 0 else float("nan")
-    else:
-        noise_sigma = float(np.sqrt(noise_variance))
-    observation_used = layout.rows_used(obs.n_obs, point_valid)
+    uncertainty = _uncertainty(solver, estimate)
     seconds["uncertainty"] = time.perf_counter() - tick
-
-    def per_point(values):
-        return layout.per_point(np.where(point_valid, values, np.nan))
-
-    return VarproResult(
-        method="varpro",
-        light_dir_cam=light_from_tangent(tangent),
-        albedo=per_point(albedo),
-        minnaert_k=per_point(minnaert_k),
-        n_points_fitted=int(np.count_nonzero(point_valid)),
-        n_obs=int(np.count_nonzero(observation_used)),
-        cost=float(sums.cost),
-        n_iterations=search_log.iterations + reduced_log.iterations + joint_log.iterations,
-        nfev=reduced_log.passes + joint_log.passes,
-        success=bool(success),
-        message="; ".join(message for message in messages if message),
-        fit_seconds=time.perf_counter() - start,
-        solver="variable projection (log space) + joint Gauss-Newton polish, block-Schur (numpy, streamed)",
-        albedo_std=per_point(albedo_std),
-        minnaert_k_std=per_point(k_std),
-        albedo_k_cov=per_point(cov_albedo_k * noise_variance),
-        light_cov_tangent=light_cov,
-        light_std_deg=light_std_deg(tangent, light_cov),
-        noise_sigma=noise_sigma,
-        sigma_estimated=not sigma_known,
-        reduced_chi2=float(sums.chi2 / dof),
-        weighted_cost=float(sums.objective),
-        observation_used=observation_used,
-        n_rejected=layout.n_rejected(),
-        loss=loss_fn.name,
-        stage_seconds=seconds,
-        stage_passes=passes,
-    )
+    return _result(solver, estimate, uncertainty, logs, start, seconds, passes)
