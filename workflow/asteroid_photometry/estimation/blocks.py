@@ -314,7 +314,7 @@ class PassSums:
 
 def chunk_geometry(chunk, frame):
     """For a chunk, shaped (P, c): cos_i floored at ``COS_INCIDENCE_FLOOR``, lit (cos_i above the floor),
-    and the tangent derivatives of log cos_i (zero where unlit, as in ``estimate.KoizumiProblem``)."""
+    and the tangent derivatives of log cos_i (zero where unlit, as in ``koizumi.KoizumiProblem``)."""
     shape = chunk.shape
     projected = frame @ chunk.normal
     cos_i = projected[0].reshape(shape)
@@ -349,7 +349,7 @@ def joint_pass(layout: PointBlocks, tangent, albedo, minnaert_k, loss: Loss, sca
 
     Residual ``r = albedo cos_i**k cos_o**(k-1) - b`` with weight ``1 /
     sigma**2`` (times the IRLS weight for a robust loss); parameters per
-    point are (albedo, k), as in ``estimate.KoizumiProblem``, and ``cos_i``
+    point are (albedo, k), as in ``koizumi.KoizumiProblem``, and ``cos_i``
     is floored the same way. ``sample_stride > 0`` keeps every so-many
     |standardized residual| of kept rows for a MAD.
     """

@@ -21,7 +21,7 @@ The log-space weights ``(b / sigma)**2`` make it approximate the brightness
 metric, so it lands next to the least-squares solution, and one or two
 joint Gauss-Newton passes on the *brightness* residuals (weights
 ``1 / sigma**2``, the same arrow-structured algebra as the block LM in
-``estimate``) then reach the true weighted least-squares (maximum-likelihood
+``koizumi``) then reach the true weighted least-squares (maximum-likelihood
 under Gaussian noise) estimate, the one ``fit_koizumi_lm`` finds.
 
 Passes over the data are streamed: the rows are regrouped once into dense
@@ -46,11 +46,11 @@ Stages of :func:`fit_varpro`:
    observations whose standardized residual exceeds a MAD-based threshold,
    followed by a refit;
 5. uncertainty: ``J^T W J`` at the solution, inverted through its arrow
-   structure (``estimate.arrow_covariance``): the light's 2x2 covariance in
+   structure (``arrow.arrow_covariance``): the light's 2x2 covariance in
    tangent coordinates and its angular standard deviation, and every
    point's marginal standard deviations of albedo and k.
 
-Frames, units and the tangent chart follow ``estimate`` and the package
+Frames, units and the tangent chart follow ``core`` and the package
 conventions.
 """
 
@@ -456,9 +456,9 @@ class VarproResult(FitResult):
     Per point (NaN where not fitted): ``albedo_std``, ``minnaert_k_std``
     and ``albedo_k_cov``, the marginal (light uncertainty included)
     standard deviations and covariance. ``light_cov_tangent`` (2x2): the
-    light's covariance in tangent coordinates (``estimate.light_from_tangent``);
+    light's covariance in tangent coordinates (``core.light_from_tangent``);
     ``light_std_deg``: the RMS angular error it implies
-    (``estimate.light_std_deg``). ``noise_sigma``: the brightness noise
+    (``core.light_std_deg``). ``noise_sigma``: the brightness noise
     standard deviation used, given or estimated (``sigma_estimated``), NaN
     when a per-observation sigma was given; ``reduced_chi2``: weighted sum of
     squared residuals over the degrees of freedom (about 1 when a given
@@ -492,7 +492,7 @@ class VarproResult(FitResult):
 
 
 # --------------------------------------------------------------------------
-# The estimator
+# The estimator's stages
 # --------------------------------------------------------------------------
 
 
@@ -509,11 +509,6 @@ def _inverse_variance(obs: Observations, sigma):
     if not np.all(np.isfinite(sigma) & (sigma > 0)):
         raise ValueError("fit_varpro: every sigma must be finite and > 0")
     return 1.0 / sigma**2
-
-
-# --------------------------------------------------------------------------
-# The estimator's stages
-# --------------------------------------------------------------------------
 
 
 @dataclasses.dataclass
@@ -746,6 +741,11 @@ def _result(solver: _Solver, estimate: _Estimate, uncertainty: dict, logs, start
     )
 
 
+# --------------------------------------------------------------------------
+# The estimator
+# --------------------------------------------------------------------------
+
+
 def fit_varpro(
     obs: Observations,
     *,
@@ -773,7 +773,7 @@ def fit_varpro(
     Parameters
     ----------
     obs : Observations
-        As for ``estimate.fit_koizumi_lm``; rows may come in any order.
+        As for ``koizumi.fit_koizumi_lm``; rows may come in any order.
     sigma : None, float or (n_obs,) array
         Brightness noise standard deviation, one for all or per observation
         (e.g. ``np.sqrt(noise.observation_variance(obs.brightness, sensor))``).
