@@ -1,6 +1,6 @@
 """The light and a photometric law's parameters fitted to brightness observations, for every law.
 
-The forward model of every law of ``photometry`` behind one fit: the light
+The forward model of every law of ``reflectance.laws`` behind one fit: the light
 direction (``core``'s tangent chart about ``-z``) and the law's
 parameters, each either fitted per point, fitted once for the body
 (global), or held at a given value. A ``FitSpec`` says which. Residuals are
