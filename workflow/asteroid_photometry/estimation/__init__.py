@@ -9,6 +9,10 @@ The public API, one import away (``from asteroid_photometry import estimation``)
 - :mod:`.iwano`: Iwano's linear baseline (k known, one albedo);
 - :mod:`.varpro`: the default estimator, variable projection;
 - :mod:`.arrow`: the arrow-structured normal equations all three share;
+- :mod:`.blocks`: the observations regrouped for streamed passes, and the
+  brightness pass that varpro's steps and fisher's information share;
+- :mod:`.light_search`: the grid search of the starting light that koizumi
+  and varpro share;
 - :mod:`.fisher`: the Fisher information and the Cramer-Rao bound;
 - :mod:`.model_fit`: fits of the photometric model family;
 - :mod:`.registry`: one way to run a named estimator on a set's observations;

@@ -5,14 +5,14 @@ estimated from a given set of observations? Under the Gaussian model
 
     b_j ~ N(f_j(theta), variance_j),   f_j = albedo_p cos_i**k_p cos_o**(k_p - 1),
 
-with ``theta`` the light's tangent coordinates (``estimate.light_from_tangent``)
+with ``theta`` the light's tangent coordinates (``core.light_from_tangent``)
 and every point's (albedo, k), the Fisher information is ``J^T W J`` with
 ``J = df/dtheta`` at the true parameters and ``W = diag(1 / variance_j)``.
 Its inverse bounds the covariance of any unbiased estimator (Cramer-Rao). The
 matrix is an arrow (a 2x2 light block, a 2x2 block per point and their
-couplings), so it is assembled in one streamed pass (the same one the
+couplings), so it is assembled in one streamed pass (``blocks``, the one the
 ``varpro`` estimator uses for its Gauss-Newton steps) and inverted through
-the Schur complement (``estimate.arrow_covariance``): the light's 2x2
+the Schur complement (``arrow.arrow_covariance``): the light's 2x2
 covariance bound and every point's marginal 2x2 bound, without ever forming
 the (2 + 2 n_points)^2 matrix.
 
@@ -34,7 +34,7 @@ import numpy as np
 
 from asteroid_photometry.estimation.arrow import arrow_covariance
 from asteroid_photometry.estimation.core import angle_between_deg, light_std_deg, Observations, tangent_from_light
-from asteroid_photometry.estimation.varpro import brightness_normal_equations, PointBlocks
+from asteroid_photometry.estimation.blocks import brightness_normal_equations, PointBlocks
 from asteroid_photometry.reflectance.laws import minnaert_brightness
 
 __all__ = ["FisherBlocks", "fisher_blocks", "cramer_rao_bounds", "efficiency"]
@@ -130,7 +130,7 @@ def fisher_blocks(
     ----------
     observations : Observations, or a geometry
         Which point each observation sees and its camera-frame normal and
-        view vector: an :class:`~.estimate.Observations` (its brightness is
+        view vector: an :class:`~.core.Observations` (its brightness is
         not used) or any mapping or object with ``point_index``,
         ``normal_cam``, ``view_cam`` and ``n_points``.
     light_dir_cam : (3,) array
@@ -192,7 +192,7 @@ def cramer_rao_bounds(observations, light_dir_cam, albedo, minnaert_k, variance,
       marginal bound (what the light's uncertainty passes on included); NaN
       for points left out;
     - ``light_cov`` (2, 2): the bound on the light's tangent coordinates;
-    - ``light_std_deg``: the RMS angular error it implies (``estimate.light_std_deg``);
+    - ``light_std_deg``: the RMS angular error it implies (``core.light_std_deg``);
     - ``light_tangent`` (2,): where it was evaluated.
     """
     blocks = fisher_blocks(observations, light_dir_cam, albedo, minnaert_k, variance, min_observations=min_observations)

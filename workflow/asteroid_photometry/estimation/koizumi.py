@@ -25,6 +25,8 @@ from asteroid_photometry.estimation.core import (
     tangent_from_light,
 )
 from asteroid_photometry.estimation.iwano import fit_iwano_linear
+from asteroid_photometry.estimation.light_search import evenly_spaced, grid_search
+from asteroid_photometry.reflectance.laws import minnaert_factor
 
 # --------------------------------------------------------------------------
 # Koizumi et al.: joint non-linear fit
@@ -84,7 +86,7 @@ class KoizumiProblem:
         log_cos_i = np.log(cos_i)
         k_row = k[self.local]
         with np.errstate(over="ignore"):  # a wild trial k may overflow: infinite cost, step rejected
-            shape_term = np.exp(k_row * log_cos_i + (k_row - 1.0) * self.log_cos_o)  # cos_i^k cos_o^(k-1)
+            shape_term = minnaert_factor(k_row, log_cos_i, self.log_cos_o)  # cos_i^k cos_o^(k-1)
         model = albedo[self.local] * shape_term
         residual = model - self.brightness
         if not with_jacobian:
@@ -193,45 +195,30 @@ def search_light(
 ) -> np.ndarray:
     """Coarse-to-fine grid search of the light by :func:`profile_cost`, for LM's start.
 
-    Why: when the albedo varies from point to point, Iwano's single-albedo
-    guess can be many degrees off along the spin axis (17 deg for albedo
-    uniform in [0.3, 0.8] at a 10 deg light angle), where the joint cost has
-    a long, shallow valley; with few views per point and noise LM then stops
-    in a local minimum. The profile cost is cheap and its minimum over a
-    grid lands in the right basin.
-
-    The grid covers tangent coordinates ``[-half_width, half_width]**2``
-    (light angles up to about 39 deg along the axes at 0.8) with ``n_grid**2``
-    nodes, plus ``light_guess``; each of ``n_refine`` levels then searches a
-    7x7 grid over +-1 cell around the best node with a 3x finer step. Only
+    :func:`~.light_search.grid_search` (where the reasons for a grid are)
+    with the best node so far kept across levels, starting from
+    ``light_guess``: tangent coordinates ``[-half_width, half_width]**2``
+    with ``n_grid**2`` nodes, then ``n_refine`` finer 7x7 levels. Only
     ``max_points`` points (evenly spaced in index order) enter the search.
     """
     obs = problem.obs
     fitted_points = np.flatnonzero(problem.fitted)
     if fitted_points.size > max_points:
         chosen = np.zeros(obs.n_points, bool)
-        chosen[fitted_points[np.linspace(0, fitted_points.size - 1, max_points).astype(np.int64)]] = True
+        chosen[evenly_spaced(fitted_points, max_points)] = True
         rows = chosen[obs.point_index]
         obs = Observations(
             obs.point_index[rows], obs.normal_cam[rows], obs.view_cam[rows], obs.brightness[rows], obs.n_points
         )
         problem = KoizumiProblem(obs, min_observations=1, cos_floor=problem.cos_floor)
 
-    best_tangent = tangent_from_light(light_guess)
-    best_cost = profile_cost(problem, light_from_tangent(best_tangent))
-    centre, step = np.zeros(2), 2.0 * half_width / (n_grid - 1)
-    offsets = np.linspace(-half_width, half_width, n_grid)
-    for level in range(n_refine + 1):
-        for da in offsets:
-            for db in offsets:  # a few hundred cheap evaluations, not a loop over points
-                tangent = centre + (da, db)
-                cost = profile_cost(problem, light_from_tangent(tangent))
-                if cost < best_cost:
-                    best_cost, best_tangent = cost, tangent
-        centre = best_tangent
-        offsets = np.linspace(-step, step, 7)
-        step = step / 3.0
-    return light_from_tangent(best_tangent)
+    def score(tangents):  # a few hundred cheap evaluations, not a loop over points
+        return np.array([profile_cost(problem, light_from_tangent(tangent)) for tangent in tangents])
+
+    best = grid_search(
+        score, tangent_from_light(light_guess), half_width=half_width, n_grid=n_grid, n_refine=n_refine, keep_best=True
+    )
+    return light_from_tangent(best)
 
 
 def _initial_parameters(problem: KoizumiProblem, light_init):
@@ -515,7 +502,8 @@ def fit_pooled_k(obs: Observations, light_init, minnaert_k_init: float, *, min_o
     if not np.isfinite(minnaert_k_init) or minnaert_k_init <= 0:
         raise ValueError(f"fit_pooled_k: minnaert_k_init must be a positive number, got {minnaert_k_init!r}")
     light_init = light_init / np.linalg.norm(light_init)
-    # Start: each point's albedo by least squares under the initial light and k.
+    # Start: each point's albedo by least squares under the initial light and k (the Minnaert law in a
+    # mixed power/log form of its own; laws.minnaert_factor would change its last bits).
     shape_term = np.maximum(problem.normal @ light_init, problem.cos_floor) ** minnaert_k_init * np.exp((minnaert_k_init - 1.0) * problem.log_cos_o)
     albedo0 = np.bincount(problem.local, shape_term * problem.brightness, m) / np.bincount(problem.local, shape_term**2, m)
     x0 = np.concatenate([tangent_from_light(light_init), albedo0, [minnaert_k_init]])

@@ -1,7 +1,7 @@
 """The light and a photometric law's parameters fitted to brightness observations, for every law.
 
-The forward model of every law of ``photometry`` behind one fit: the light
-direction (``estimate``'s tangent chart about ``-z``) and the law's
+The forward model of every law of ``reflectance.laws`` behind one fit: the light
+direction (``core``'s tangent chart about ``-z``) and the law's
 parameters, each either fitted per point, fitted once for the body
 (global), or held at a given value. A ``FitSpec`` says which. Residuals are
 ``(law - b) / sigma``; the Jacobian is the law's central-difference one
@@ -9,7 +9,7 @@ parameters, each either fitted per point, fitted once for the body
 ``cos_g``. The normal matrix is an arrow (the globals, then one small block
 per point), so Levenberg-Marquardt eliminates the point blocks (Schur
 complement) and solves a system the size of the globals: the same scheme as
-``estimate``'s block LM, for any number of parameters.
+``koizumi``'s block LM, for any number of parameters.
 
 The same blocks at the true parameters are the Fisher information
 (:func:`fisher_information`): how well each parameter can be estimated

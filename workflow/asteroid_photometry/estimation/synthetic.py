@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from asteroid_photometry.estimation.core import Observations
+from asteroid_photometry.reflectance.laws import minnaert_brightness
 
 # --------------------------------------------------------------------------
 # Synthetic data
@@ -114,7 +115,7 @@ def synthetic_observations(
     point_index, normal_cam, view_cam = point_index[keep], normal_cam[keep], view_cam[keep]
     cos_i, cos_o = cos_i[keep], cos_o[keep]
     k_row = minnaert_k[point_index]
-    brightness = albedo[point_index] * cos_i**k_row * cos_o ** (k_row - 1.0)
+    brightness = minnaert_brightness(albedo[point_index], k_row, cos_i, cos_o)
     if noise_sigma > 0.0:
         brightness = brightness + rng.normal(0.0, noise_sigma, brightness.shape)
     return Observations(

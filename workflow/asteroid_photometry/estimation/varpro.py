@@ -21,22 +21,23 @@ The log-space weights ``(b / sigma)**2`` make it approximate the brightness
 metric, so it lands next to the least-squares solution, and one or two
 joint Gauss-Newton passes on the *brightness* residuals (weights
 ``1 / sigma**2``, the same arrow-structured algebra as the block LM in
-``estimate``) then reach the true weighted least-squares (maximum-likelihood
+``koizumi``) then reach the true weighted least-squares (maximum-likelihood
 under Gaussian noise) estimate, the one ``fit_koizumi_lm`` finds.
 
 Passes over the data are streamed: the rows are regrouped once into dense
 (points x observations) blocks, one per observation count
-(:class:`PointBlocks`), and every pass walks them in cache-sized chunks, so
+(:class:`~.blocks.PointBlocks`), and every pass walks them in cache-sized chunks, so
 per-point broadcasts and sums are plain axis operations and no array the
 size of the data is made per iteration.
 
 Stages of :func:`fit_varpro`:
 
 1. start: a grid over the light's tangent coordinates on a subsample of
-   points, scored by the brightness cost with closed-form per-point
-   parameters (as ``estimate.search_light``, but all lights of the grid in
-   one vectorised evaluation), then the reduced problem on a larger
-   subsample; skipped when ``light_init`` is given;
+   points (:func:`~.light_search.grid_search`, the search
+   ``koizumi.search_light`` also makes), scored by the brightness cost with
+   closed-form per-point parameters, all lights of a batch in one
+   vectorised evaluation; then the reduced problem on a larger subsample;
+   skipped when ``light_init`` is given;
 2. the reduced (log-space) problem on all points;
 3. ``polish``: joint Gauss-Newton / Levenberg-Marquardt on the brightness
    residuals;
@@ -45,11 +46,11 @@ Stages of :func:`fit_varpro`:
    observations whose standardized residual exceeds a MAD-based threshold,
    followed by a refit;
 5. uncertainty: ``J^T W J`` at the solution, inverted through its arrow
-   structure (``estimate.arrow_covariance``): the light's 2x2 covariance in
+   structure (``arrow.arrow_covariance``): the light's 2x2 covariance in
    tangent coordinates and its angular standard deviation, and every
    point's marginal standard deviations of albedo and k.
 
-Frames, units and the tangent chart follow ``estimate`` and the package
+Frames, units and the tangent chart follow ``core`` and the package
 conventions.
 """
 
@@ -61,6 +62,20 @@ import time
 import numpy as np
 
 from asteroid_photometry.estimation.arrow import arrow_covariance, solve_arrow_system
+from asteroid_photometry.estimation.blocks import (
+    CHUNK_ROWS,
+    chunk_geometry,
+    chunk_sum,
+    HUBER,
+    joint_pass,
+    light_frame,
+    Loss,
+    LOSSES,
+    PassSums,
+    point_dot,
+    PointBlocks,
+    strided,
+)
 from asteroid_photometry.estimation.core import (
     COS_INCIDENCE_FLOOR,
     FitResult,
@@ -71,24 +86,10 @@ from asteroid_photometry.estimation.core import (
     tangent_from_light,
 )
 from asteroid_photometry.estimation.iwano import fit_iwano_linear
+from asteroid_photometry.estimation.light_search import evenly_spaced, grid_search
 
-__all__ = [
-    "LOSSES",
-    "PointBlocks",
-    "VarproResult",
-    "brightness_normal_equations",
-    "fit_varpro",
-    "light_frame",
-]
+__all__ = ["LOSSES", "VarproResult", "fit_varpro"]
 
-LOSSES = ("linear", "huber", "cauchy")
-# Default loss thresholds, in units of the standardized residual: the usual
-# constants giving 95 % efficiency under Gaussian noise.
-DEFAULT_F_SCALE = {"linear": np.inf, "huber": 1.345, "cauchy": 2.3849}
-# Rows per chunk of a streamed pass: 64k rows keep a chunk's ~20 temporaries in cache.
-CHUNK_ROWS = 1 << 16
-# MAD of a standard normal: sigma = MAD_TO_SIGMA * median(|z|).
-MAD_TO_SIGMA = 1.482602218505602
 # A pass keeps at most this many |standardized residual| samples for MAD scale estimates.
 MAD_SAMPLES = 200_000
 # Fits whose RMS relative residual is below this are exact (noiseless data): stop iterating.
@@ -108,305 +109,6 @@ SCALE_ROUND_CHANGE = 0.02
 SINGULAR_RELATIVE = 1e-12
 
 
-# --------------------------------------------------------------------------
-# Layout: rows regrouped into dense (points x observations) blocks
-# --------------------------------------------------------------------------
-
-
-@dataclasses.dataclass
-class _Block:
-    count: int  # observations per point in this block
-    offset: int  # first slot of the block's points in the flat per-point arrays
-    rows: np.ndarray  # (n, count) row indices into the Observations
-    normal: np.ndarray  # (3, n * count) unit normals, component-major (camera frame)
-    log_cos_o: np.ndarray  # (n, count)
-    brightness: np.ndarray  # (n, count)
-    inv_var: np.ndarray | None  # (n, count) 1 / sigma**2, or None for the layout's scalar
-    keep: np.ndarray | None = None  # (n, count) 1.0 kept / 0.0 rejected, None: all kept
-
-    @property
-    def n(self) -> int:
-        return self.rows.shape[0]
-
-
-@dataclasses.dataclass
-class _Chunk:
-    block: _Block
-    points: slice  # slice of the flat per-point arrays
-    p0: int
-    p1: int
-
-    @property
-    def shape(self):
-        return self.p1 - self.p0, self.block.count
-
-    @property
-    def normal(self):
-        count = self.block.count
-        return self.block.normal[:, self.p0 * count : self.p1 * count]
-
-    def rows_of(self, name):
-        array = getattr(self.block, name)
-        return None if array is None else array[self.p0 : self.p1]
-
-
-class PointBlocks:
-    """The rows of the fitted points, regrouped for streamed passes.
-
-    Points with at least ``min_observations`` rows (and, if ``points`` is
-    given, only those; :meth:`subset` cuts a smaller layout from this one) are grouped by their number of observations ``c``;
-    each group is a dense block of shape (points, c), so a per-point value
-    broadcasts along axis 1 and a per-point sum is a sum along it. The flat
-    per-point arrays of the solvers list the points block by block
-    (``point_ids`` gives their indices in the Observations). Works for rows
-    in any order; rows sorted by point (as ``observe`` and
-    ``synthetic_observations`` write them) avoid a sort.
-
-    ``inv_var`` is ``1 / sigma**2`` per observation: a scalar or an (n_obs,)
-    array in the Observations' row order.
-    """
-
-    def __init__(self, obs: Observations, *, min_observations=2, points=None, inv_var=1.0, chunk_rows=CHUNK_ROWS):
-        counts = obs.observations_per_point
-        eligible = counts >= max(int(min_observations), 1)
-        if points is not None:
-            chosen = np.zeros(obs.n_points, bool)
-            chosen[np.asarray(points, dtype=np.int64)] = True
-            eligible &= chosen
-        point_index = obs.point_index
-        order = None
-        if obs.n_obs > 1 and not bool(np.all(point_index[1:] >= point_index[:-1])):
-            order = np.argsort(point_index, kind="stable")
-        starts = np.cumsum(counts) - counts
-        per_row_inv_var = np.ndim(inv_var) > 0
-        self.inv_var = 1.0 if per_row_inv_var else float(inv_var)
-        self.n_points_total = obs.n_points
-        self.chunk_rows = int(chunk_rows)
-        cos_emission = obs.cos_emission
-        self.blocks: list[_Block] = []
-        point_ids = []
-        for count in np.unique(counts[eligible]):
-            count = int(count)
-            ids = np.flatnonzero(eligible & (counts == count))
-            rows = starts[ids, None] + np.arange(count)
-            if order is not None:
-                rows = order[rows]
-            flat_rows = rows.ravel()
-            normal = np.empty((3, flat_rows.size))
-            for start in range(0, flat_rows.size, CHUNK_ROWS):  # row gathers in chunks: fastest, small temporaries
-                normal[:, start : start + CHUNK_ROWS] = obs.normal_cam[flat_rows[start : start + CHUNK_ROWS]].T
-            self.blocks.append(
-                _Block(
-                    count=count,
-                    offset=sum(block.n for block in self.blocks),
-                    rows=rows,
-                    normal=normal,
-                    log_cos_o=np.log(cos_emission[rows]),
-                    brightness=obs.brightness[rows],
-                    inv_var=np.asarray(inv_var, dtype=np.float64)[rows] if per_row_inv_var else None,
-                )
-            )
-            point_ids.append(ids)
-        self._finish(point_ids)
-
-    def _finish(self, point_ids):
-        self.point_ids = np.concatenate(point_ids) if point_ids else np.zeros(0, np.int64)
-        self.n_points = int(sum(block.n for block in self.blocks))
-        self.n_rows = int(sum(block.rows.size for block in self.blocks))
-        self._ones = {block.count: np.ones(block.count) for block in self.blocks}
-        self.chunks = []
-        for block in self.blocks:
-            step = max(1, self.chunk_rows // block.count)
-            for p0 in range(0, block.n, step):
-                p1 = min(block.n, p0 + step)
-                self.chunks.append(_Chunk(block, slice(block.offset + p0, block.offset + p1), p0, p1))
-        # Typical |b| / sigma: the reference of the noise-scale floor.
-        stride = max(1, self.n_rows // 100_000)
-        sample = [_strided(np.abs(b.brightness) * np.sqrt(self._inv_var_of(b)), stride) for b in self.blocks]
-        self.typical_brightness = float(np.median(np.concatenate(sample))) if sample else 1.0
-        self.typical_brightness = self.typical_brightness or 1.0
-
-    def subset(self, flat_points) -> "PointBlocks":
-        """A layout of some of these points (increasing flat indices), cut from this one's arrays."""
-        flat_points = np.asarray(flat_points, dtype=np.int64)
-        sub = object.__new__(PointBlocks)
-        sub.inv_var, sub.n_points_total, sub.chunk_rows = self.inv_var, self.n_points_total, self.chunk_rows
-        sub.blocks, point_ids = [], []
-        for block in self.blocks:
-            low, high = np.searchsorted(flat_points, [block.offset, block.offset + block.n])
-            local = flat_points[low:high] - block.offset
-            if local.size == 0:
-                continue
-            sub.blocks.append(
-                _Block(
-                    count=block.count,
-                    offset=sum(b.n for b in sub.blocks),
-                    rows=block.rows[local],
-                    normal=block.normal.reshape(3, block.n, block.count)[:, local].reshape(3, -1),
-                    log_cos_o=block.log_cos_o[local],
-                    brightness=block.brightness[local],
-                    inv_var=None if block.inv_var is None else block.inv_var[local],
-                    keep=None if block.keep is None else block.keep[local],
-                )
-            )
-            point_ids.append(self.point_ids[block.offset + local])
-        sub._finish(point_ids)
-        return sub
-
-    def rows(self) -> np.ndarray:
-        """Row indices (into the Observations) of every row of the layout."""
-        return np.concatenate([block.rows.ravel() for block in self.blocks]) if self.blocks else np.zeros(0, np.int64)
-
-    def ones(self, count):
-        return self._ones[count]
-
-    def weight(self, chunk: _Chunk):
-        """1 / sigma**2 times the keep mask, for a chunk: an array, or the scalar when uniform and all kept."""
-        inv_var = chunk.rows_of("inv_var")
-        keep = chunk.rows_of("keep")
-        weight = self.inv_var if inv_var is None else inv_var
-        return weight if keep is None else weight * keep
-
-    def _inv_var_of(self, block: _Block):
-        return self.inv_var if block.inv_var is None else block.inv_var
-
-    @property
-    def n_params(self) -> int:
-        return 2 + 2 * self.n_points
-
-    def n_rejected(self) -> int:
-        return int(sum(np.count_nonzero(block.keep == 0.0) for block in self.blocks if block.keep is not None))
-
-    def set_keep(self, keep_rows: np.ndarray) -> int:
-        """Mark rows kept (True) or rejected, from an (n_obs,) mask; returns the number of rows that changed."""
-        changed = 0
-        for block in self.blocks:
-            new = keep_rows[block.rows].astype(np.float64)
-            old = np.ones_like(new) if block.keep is None else block.keep
-            changed += int(np.count_nonzero(new != old))
-            block.keep = None if np.all(new == 1.0) else new
-        return changed
-
-    def rows_used(self, n_obs: int, point_valid: np.ndarray) -> np.ndarray:
-        """(n_obs,) bool: rows of valid points that are kept."""
-        used = np.zeros(n_obs, bool)
-        for block in self.blocks:
-            valid = point_valid[block.offset : block.offset + block.n, None]
-            kept = np.ones(block.rows.shape, bool) if block.keep is None else block.keep > 0
-            used[block.rows] = kept & valid
-        return used
-
-    def per_point(self, flat_values, fill=np.nan) -> np.ndarray:
-        """Scatter flat per-point values (block order) to an (n_points,) array of the Observations."""
-        out = np.full(self.n_points_total, fill, dtype=np.float64)
-        out[self.point_ids] = flat_values
-        return out
-
-
-def _strided(values, stride):
-    return values.ravel()[:: max(int(stride), 1)]
-
-
-def light_frame(tangent) -> np.ndarray:
-    """Rows: the light ``l`` (camera frame) and its derivatives ``dl/da``, ``dl/db`` in tangent coordinates."""
-    a, b = float(tangent[0]), float(tangent[1])
-    norm = np.sqrt(1.0 + a * a + b * b)
-    light = np.array([a, b, -1.0]) / norm
-    return np.stack(
-        [light, (np.array([1.0, 0.0, 0.0]) - light * light[0]) / norm, (np.array([0.0, 1.0, 0.0]) - light * light[1]) / norm]
-    )
-
-
-# --------------------------------------------------------------------------
-# Losses (IRLS weights)
-# --------------------------------------------------------------------------
-
-
-class _Loss:
-    """rho(z) and the IRLS weight psi(z)/z of a standardized residual z, threshold ``f_scale``."""
-
-    def __init__(self, name: str, f_scale):
-        if name not in LOSSES:
-            raise ValueError(f"fit_varpro: loss must be one of {LOSSES}, got {name!r}")
-        self.name = name
-        self.f_scale = DEFAULT_F_SCALE[name] if f_scale is None else float(f_scale)
-        if not (self.f_scale > 0.0):
-            raise ValueError(f"fit_varpro: f_scale must be > 0, got {f_scale!r}")
-        self.robust = name != "linear"
-
-    def weight_and_rho(self, z):
-        c = self.f_scale
-        if self.name == "huber":
-            size = np.abs(z)
-            inside = size <= c
-            with np.errstate(divide="ignore"):
-                weight = np.where(inside, 1.0, c / size)
-            return weight, np.where(inside, 0.5 * z * z, c * size - 0.5 * c * c)
-        ratio = (z / c) ** 2  # cauchy
-        return 1.0 / (1.0 + ratio), 0.5 * c * c * np.log1p(ratio)
-
-
-HUBER = _Loss("huber", None)
-
-
-# --------------------------------------------------------------------------
-# Streamed passes
-# --------------------------------------------------------------------------
-
-
-class _PassSums:
-    """Per-point blocks of J^T W J and J^T W r, light blocks and scalars of one pass."""
-
-    def __init__(self, m):
-        self.n_params = 2 + 2 * m
-        for name in ("u11", "u12", "u22", "wa1", "wa2", "wb1", "wb2", "g1", "g2"):
-            setattr(self, name, np.zeros(m))
-        self.v = np.zeros(3)  # v_aa, v_ab, v_bb
-        self.g_light = np.zeros(2)
-        self.objective = 0.0  # the loss being minimised (0.5 sum w r^2 for linear)
-        self.cost = 0.0  # 0.5 sum of squared brightness residuals over kept rows (unweighted)
-        self.chi2 = 0.0  # sum of weighted squared residuals over kept rows (no robust weights)
-        self.norm = 0.0  # sum of weighted squared brightness (exact-fit reference)
-        self.n_rows = 0  # kept, usable rows
-        self.samples = []  # |standardized residual| samples for MAD
-
-    def mad_sigma(self) -> float:
-        if not self.samples:
-            return 0.0
-        sample = np.concatenate(self.samples)
-        return MAD_TO_SIGMA * float(np.median(sample)) if sample.size else 0.0
-
-
-def _chunk_geometry(chunk, frame):
-    """For a chunk, shaped (P, c): cos_i floored at ``COS_INCIDENCE_FLOOR``, lit (cos_i above the floor),
-    and the tangent derivatives of log cos_i (zero where unlit, as in ``estimate.KoizumiProblem``)."""
-    shape = chunk.shape
-    projected = frame @ chunk.normal
-    cos_i = projected[0].reshape(shape)
-    lit = cos_i > COS_INCIDENCE_FLOOR
-    cos_i = np.maximum(cos_i, COS_INCIDENCE_FLOOR)
-    inverse = 1.0 / cos_i
-    inverse *= lit
-    d_log_a = projected[1].reshape(shape) * inverse
-    d_log_b = projected[2].reshape(shape) * inverse
-    return cos_i, lit, d_log_a, d_log_b
-
-
-def _dot(a, b):
-    """Per-point sum of products along axis 1."""
-    return np.einsum("pc,pc->p", a, b)
-
-
-def _sum(a, ones) -> float:
-    """Sum of a (P, c) chunk array (per-point sums by BLAS, then their sum)."""
-    return float(np.sum(a @ ones))
-
-
-def _total(a, b):
-    """Sum of the products of two arrays of the same shape (a BLAS dot product)."""
-    return float(np.dot(a.ravel(), b.ravel()))
-
-
 def _weighted_line(weight, x, y, ones):
     """Per-point weighted least-squares line ``y = ybar + k (x - xbar)`` of a chunk, closed form.
 
@@ -417,19 +119,47 @@ def _weighted_line(weight, x, y, ones):
     s0 = weight @ ones
     ok = s0 > 0
     safe_s0 = np.where(ok, s0, 1.0)
-    x_mean = _dot(weight, x) / safe_s0
-    y_mean = _dot(weight, y) / safe_s0
+    x_mean = point_dot(weight, x) / safe_s0
+    y_mean = point_dot(weight, y) / safe_s0
     dx = x - x_mean[:, None]
     dy = y - y_mean[:, None]
     w_dx = weight * dx
-    sxx = _dot(w_dx, dx)
-    sxy = _dot(w_dx, dy)
+    sxx = point_dot(w_dx, dx)
+    sxy = point_dot(w_dx, dy)
     ok &= sxx > 1e-12 * s0
     k = np.where(ok, sxy / np.where(ok, sxx, 1.0), 1.0)
     return y_mean, k, x_mean, s0, sxx, dx, dy, ok
 
 
-def _reduced_pass(layout: PointBlocks, tangent, loss: _Loss, scale: float, previous=None, sample_stride=0):
+def _robust_line(loss: Loss, scale, previous_line, base_weight, inv_var, brightness, log_cos_o, x, y, ones):
+    """IRLS per point of a chunk's log-space lines under a robust loss; returns the last weights and :func:`_weighted_line`.
+
+    The sweeps start from ``previous_line`` (log albedo, k, each (P, 1)), or
+    from a plain fit made robust with Huber weights first (convex) so that a
+    redescending loss starts in the right basin. Residuals and weights come
+    from the model brightness, not the observed one: an outlier 3x too
+    bright would otherwise also get 9x the weight b**2. ``inv_var``: ``1 /
+    sigma**2`` of the usable rows (zero elsewhere).
+    """
+    if previous_line is None:
+        fit = _weighted_line(base_weight, x, y, ones)
+        sweeps = [HUBER] * ROBUST_START_SWEEPS + [loss] * ROBUST_SWEEPS
+    else:
+        fit = None
+        line = previous_line
+        sweeps = [loss] * ROBUST_SWEEPS
+    for sweep_loss in sweeps:
+        if fit is not None:
+            line = fit[0][:, None] - fit[1][:, None] * fit[2][:, None], fit[1][:, None]  # log albedo, k
+        with np.errstate(over="ignore"):  # Minnaert in log space (x = log cos_i + log cos_o); not laws.minnaert_factor's bits
+            model = np.exp(line[0] + line[1] * x - log_cos_o)
+        z = (brightness - model) * np.sqrt(inv_var) / scale
+        weight = inv_var * model * model * sweep_loss.weight_and_rho(z)[0]
+        fit = _weighted_line(weight, x, y, ones)
+    return weight, fit
+
+
+def _reduced_pass(layout: PointBlocks, tangent, loss: Loss, scale: float, previous=None, sample_stride=0):
     """The log-space problem at a light: closed-form log albedo and k per point, and the light's Schur blocks.
 
     Per point, weighted least squares of ``y = log b + log cos_o`` on ``x =
@@ -444,7 +174,7 @@ def _reduced_pass(layout: PointBlocks, tangent, loss: _Loss, scale: float, previ
     """
     frame = light_frame(tangent)
     m = layout.n_points
-    sums = _PassSums(m)
+    sums = PassSums(m)
     log_albedo, minnaert_k, valid = np.zeros(m), np.ones(m), np.zeros(m, bool)
     v_aa = v_ab = v_bb = g_a = g_b = 0.0
     for chunk in layout.chunks:
@@ -452,7 +182,7 @@ def _reduced_pass(layout: PointBlocks, tangent, loss: _Loss, scale: float, previ
         ones = layout.ones(chunk.block.count)
         brightness = chunk.rows_of("brightness")
         log_cos_o = chunk.rows_of("log_cos_o")
-        cos_i, lit, d_log_a, d_log_b = _chunk_geometry(chunk, frame)
+        cos_i, lit, d_log_a, d_log_b = chunk_geometry(chunk, frame)
         positive = brightness > 0.0
         x = np.log(cos_i)
         x += log_cos_o
@@ -462,27 +192,8 @@ def _reduced_pass(layout: PointBlocks, tangent, loss: _Loss, scale: float, previ
         base_weight *= layout.weight(chunk)
         base_weight *= lit & positive
         if loss.robust:
-            # IRLS per point, inside the chunk: from the previous parameters, or from a plain fit
-            # made robust with Huber weights first (convex) so that a redescending loss starts
-            # in the right basin.
-            if previous is None:
-                fit = _weighted_line(base_weight, x, y, ones)
-                sweeps = [HUBER] * ROBUST_START_SWEEPS + [loss] * ROBUST_SWEEPS
-            else:
-                fit = None
-                line = previous[0][sl, None], previous[1][sl, None]
-                sweeps = [loss] * ROBUST_SWEEPS
-            # Residuals and weights from the model brightness, not the observed one: an outlier
-            # 3x too bright would otherwise also get 9x the weight b**2.
-            inv_var = layout.weight(chunk) * (lit & positive)
-            for sweep_loss in sweeps:
-                if fit is not None:
-                    line = fit[0][:, None] - fit[1][:, None] * fit[2][:, None], fit[1][:, None]  # log albedo, k
-                with np.errstate(over="ignore"):
-                    model = np.exp(line[0] + line[1] * x - log_cos_o)
-                z = (brightness - model) * np.sqrt(inv_var) / scale
-                weight = inv_var * model * model * sweep_loss.weight_and_rho(z)[0]
-                fit = _weighted_line(weight, x, y, ones)
+            previous_line = None if previous is None else (previous[0][sl, None], previous[1][sl, None])
+            weight, fit = _robust_line(loss, scale, previous_line, base_weight, layout.weight(chunk) * (lit & positive), brightness, log_cos_o, x, y, ones)
         else:
             weight = base_weight
             fit = _weighted_line(weight, x, y, ones)
@@ -497,15 +208,15 @@ def _reduced_pass(layout: PointBlocks, tangent, loss: _Loss, scale: float, previ
         if loss.robust:
             z_base = np.sqrt(base_weight) * residual
             sums.objective += scale * scale * float(np.sum(loss.weight_and_rho(z_base / scale)[1]))
-            sums.chi2 += _sum(chi2, ones)
+            sums.chi2 += chunk_sum(chi2, ones)
         else:
-            total = _sum(chi2, ones)
+            total = chunk_sum(chi2, ones)
             sums.objective += 0.5 * total
             sums.chi2 += total
-        sums.norm += _sum(base_weight, ones)
+        sums.norm += chunk_sum(base_weight, ones)
         sums.n_rows += int(np.count_nonzero(base_weight))
         if sample_stride:
-            sums.samples.append(np.sqrt(_strided(chi2[base_weight > 0], sample_stride)))
+            sums.samples.append(np.sqrt(strided(chi2[base_weight > 0], sample_stride)))
         # Jacobian of r = y - c - k (x - xbar): light columns -k dlog/dt, point columns -1 and -(x - xbar).
         kk = np.where(ok, k, 0.0)  # singular points drop out of the light problem
         w_a = weight * d_log_a
@@ -513,104 +224,18 @@ def _reduced_pass(layout: PointBlocks, tangent, loss: _Loss, scale: float, previ
         sums.u11[sl] = np.where(ok, s0, 1.0)
         sums.u22[sl] = np.where(ok, sxx, 1.0)
         sums.wa1[sl] = kk * (w_a @ ones)
-        sums.wa2[sl] = kk * _dot(w_a, dx)
+        sums.wa2[sl] = kk * point_dot(w_a, dx)
         sums.wb1[sl] = kk * (w_b @ ones)
-        sums.wb2[sl] = kk * _dot(w_b, dx)
+        sums.wb2[sl] = kk * point_dot(w_b, dx)
         k2 = kk * kk
-        v_aa += float(k2 @ _dot(w_a, d_log_a))
-        v_ab += float(k2 @ _dot(w_a, d_log_b))
-        v_bb += float(k2 @ _dot(w_b, d_log_b))
-        g_a -= float(kk @ _dot(w_a, residual))
-        g_b -= float(kk @ _dot(w_b, residual))
+        v_aa += float(k2 @ point_dot(w_a, d_log_a))
+        v_ab += float(k2 @ point_dot(w_a, d_log_b))
+        v_bb += float(k2 @ point_dot(w_b, d_log_b))
+        g_a -= float(kk @ point_dot(w_a, residual))
+        g_b -= float(kk @ point_dot(w_b, residual))
     sums.v[:] = v_aa, v_ab, v_bb
     sums.g_light[:] = g_a, g_b
     return sums, log_albedo, minnaert_k, valid
-
-
-def _joint_pass(layout: PointBlocks, tangent, albedo, minnaert_k, loss: _Loss, scale: float, sample_stride=0):
-    """Brightness residuals at (light, albedo, k): blocks of J^T W J and the gradient J^T W r.
-
-    Residual ``r = albedo cos_i**k cos_o**(k-1) - b`` with weight ``1 /
-    sigma**2`` (times the IRLS weight for a robust loss); parameters per
-    point are (albedo, k), as in ``estimate.KoizumiProblem``, and ``cos_i``
-    is floored the same way. ``sample_stride > 0`` keeps every so-many
-    |standardized residual| of kept rows for a MAD.
-    """
-    frame = light_frame(tangent)
-    sums = _PassSums(layout.n_points)
-    v_aa = v_ab = v_bb = g_a = g_b = 0.0
-    for chunk in layout.chunks:
-        sl = chunk.points
-        ones = layout.ones(chunk.block.count)
-        rho, k = albedo[sl], minnaert_k[sl]
-        brightness = chunk.rows_of("brightness")
-        log_cos_o = chunk.rows_of("log_cos_o")
-        kept = chunk.rows_of("keep")
-        cos_i, lit, d_log_a, d_log_b = _chunk_geometry(chunk, frame)
-        x = np.log(cos_i)
-        x += log_cos_o
-        with np.errstate(over="ignore", invalid="ignore"):  # a wild trial k: infinite cost, step rejected
-            shape_term = k[:, None] * x
-            shape_term -= log_cos_o
-            np.exp(shape_term, out=shape_term)  # cos_i^k cos_o^(k-1)
-            residual = rho[:, None] * shape_term
-            residual -= brightness
-        base_weight = layout.weight(chunk)
-        weighted_residual = base_weight * residual
-        chi2 = _total(weighted_residual, residual)
-        if loss.robust:
-            z = residual * np.sqrt(base_weight)
-            robust_weight, rho_z = loss.weight_and_rho(z / scale)
-            weight = base_weight * robust_weight
-            sums.objective += scale * scale * float(np.sum(rho_z))
-        else:
-            weight = base_weight
-            sums.objective += 0.5 * chi2
-        sums.chi2 += chi2
-        sums.cost += 0.5 * (_total(residual, residual) if kept is None else _total(residual * kept, residual))
-        sums.norm += _total(base_weight * brightness, brightness) if np.ndim(base_weight) else base_weight * _total(brightness, brightness)
-        sums.n_rows += residual.size if kept is None else int(np.count_nonzero(kept))
-        if sample_stride:
-            z_abs = np.abs(residual) * np.sqrt(base_weight)
-            sums.samples.append(_strided(z_abs if kept is None else z_abs[kept > 0], sample_stride))
-        q = shape_term * shape_term
-        q *= weight
-        h = shape_term * residual
-        h *= weight
-        q_x = q * x
-        q_a = q * d_log_a
-        q_b = q * d_log_b
-        k_rho = k * rho
-        sums.u11[sl] = q @ ones
-        sums.u12[sl] = rho * (q_x @ ones)
-        sums.u22[sl] = rho * rho * _dot(q_x, x)
-        sums.wa1[sl] = k_rho * (q_a @ ones)
-        sums.wa2[sl] = k_rho * rho * _dot(q_x, d_log_a)
-        sums.wb1[sl] = k_rho * (q_b @ ones)
-        sums.wb2[sl] = k_rho * rho * _dot(q_x, d_log_b)
-        k_rho2 = k_rho * k_rho
-        v_aa += float(k_rho2 @ _dot(q_a, d_log_a))
-        v_ab += float(k_rho2 @ _dot(q_a, d_log_b))
-        v_bb += float(k_rho2 @ _dot(q_b, d_log_b))
-        sums.g1[sl] = h @ ones
-        sums.g2[sl] = rho * _dot(h, x)
-        g_a += float(k_rho @ _dot(h, d_log_a))
-        g_b += float(k_rho @ _dot(h, d_log_b))
-    sums.v[:] = v_aa, v_ab, v_bb
-    sums.g_light[:] = g_a, g_b
-    return sums
-
-
-def brightness_normal_equations(blocks: PointBlocks, tangent, albedo, minnaert_k) -> _PassSums:
-    """Blocks of ``J^T W J`` and ``J^T W r`` of the brightness residuals, ``W = 1 / sigma**2`` of ``blocks``.
-
-    ``albedo`` and ``minnaert_k`` are flat per-point arrays in the blocks'
-    order (``blocks.point_ids``). The returned sums hold ``v`` (v_aa, v_ab,
-    v_bb), per point ``u11, u12, u22`` (albedo, k), ``wa1, wa2, wb1, wb2``
-    (light rows a, b; point columns albedo, k), the gradients, and ``chi2``.
-    Used by ``fisher`` for the information matrix.
-    """
-    return _joint_pass(blocks, tangent, albedo, minnaert_k, _Loss("linear", None), 1.0)
 
 
 def _keep_pass(layout: PointBlocks, tangent, albedo, minnaert_k, threshold, keep_rows):
@@ -621,19 +246,19 @@ def _keep_pass(layout: PointBlocks, tangent, albedo, minnaert_k, threshold, keep
         log_cos_o = chunk.rows_of("log_cos_o")
         cos_i = (frame[0] @ chunk.normal).reshape(chunk.shape)
         x = np.log(np.maximum(cos_i, COS_INCIDENCE_FLOOR)) + log_cos_o
-        with np.errstate(over="ignore", invalid="ignore"):
+        with np.errstate(over="ignore", invalid="ignore"):  # the joint pass's Minnaert form (blocks.joint_pass)
             model = albedo[sl, None] * np.exp(minnaert_k[sl, None] * x - log_cos_o)
         inv_var = chunk.rows_of("inv_var")
         size = np.abs(model - chunk.rows_of("brightness")) * np.sqrt(layout.inv_var if inv_var is None else inv_var)
         keep_rows[chunk.block.rows[chunk.p0 : chunk.p1]] = size <= threshold
 
 
-def _point_valid(sums: _PassSums) -> np.ndarray:
+def _point_valid(sums: PassSums) -> np.ndarray:
     det = sums.u11 * sums.u22 - sums.u12 * sums.u12
     return (sums.u11 > 0) & (sums.u22 > 0) & (det > SINGULAR_RELATIVE * sums.u11 * sums.u22) & np.isfinite(det)
 
 
-def _masked_blocks(sums: _PassSums, valid, damping=0.0):
+def _masked_blocks(sums: PassSums, valid, damping=0.0):
     """Blocks for the arrow solve with invalid points decoupled (identity block, zero coupling and gradient)."""
     factor = 1.0 + damping
     u11 = np.where(valid, sums.u11 * factor, 1.0)
@@ -656,7 +281,7 @@ def _step_chi2(sums, valid, step_light, step_1, step_2, damping):
     return -gradient_dot - damped
 
 
-def _exact(sums: _PassSums) -> bool:
+def _exact(sums: PassSums) -> bool:
     return sums.norm > 0 and sums.chi2 <= (EXACT_FIT_RELATIVE**2) * sums.norm
 
 
@@ -717,7 +342,7 @@ def _solve_reduced(layout, tangent, loss, scale, variance_scale, max_iterations,
 def _solve_joint(layout, tangent, albedo, minnaert_k, valid, loss, scale, variance_scale, max_iterations, step_tol, log, stride=0):
     """Gauss-Newton / LM on all parameters (brightness residuals), steps through the arrow structure."""
     tangent, albedo, minnaert_k = np.array(tangent, float), albedo.copy(), minnaert_k.copy()
-    sums = _joint_pass(layout, tangent, albedo, minnaert_k, loss, scale, stride)
+    sums = joint_pass(layout, tangent, albedo, minnaert_k, loss, scale, stride)
     log.passes += 1
     damping = 0.0
     for _ in range(max_iterations):
@@ -736,7 +361,7 @@ def _solve_joint(layout, tangent, albedo, minnaert_k, valid, loss, scale, varian
             break
         trial_albedo = np.where(point_valid, albedo + step_albedo, albedo)
         trial_k = np.where(point_valid, minnaert_k + step_k, minnaert_k)
-        trial = _joint_pass(layout, tangent + step_light, trial_albedo, trial_k, loss, scale, stride)
+        trial = joint_pass(layout, tangent + step_light, trial_albedo, trial_k, loss, scale, stride)
         log.passes += 1
         log.iterations += 1
         if np.isfinite(trial.objective) and trial.objective <= sums.objective:
@@ -760,8 +385,11 @@ def _solve_joint(layout, tangent, albedo, minnaert_k, valid, loss, scale, varian
 def _profile_costs(layout: PointBlocks, tangents: np.ndarray) -> np.ndarray:
     """Brightness cost of many lights at once, each with closed-form log-space albedo and k per point.
 
-    The same score as ``estimate.profile_cost`` (k clipped to
-    ``INIT_K_RANGE``, unlit rows predicted dark), vectorised over lights.
+    The score of ``koizumi.profile_cost`` (k clipped to ``INIT_K_RANGE``),
+    vectorised over lights, except that unlit rows are predicted dark, the
+    weights carry ``1 / sigma**2`` and a singular point gets k = 1 with its
+    own rows' level (albedo 1 with none) rather than the others' mean albedo:
+    the two are not bit-for-bit the same score.
     """
     lights = light_from_tangent(tangents)  # (L, 3)
     n_lights = len(lights)
@@ -787,7 +415,7 @@ def _profile_costs(layout: PointBlocks, tangents: np.ndarray) -> np.ndarray:
             regular = (s0 > 0) & (sxx > 1e-12 * s0)
             k = np.clip(np.where(regular, sxy / sxx, 1.0), *INIT_K_RANGE)
             log_albedo = np.where(s0 > 0, y_mean - k * x_mean, 0.0)
-            model = np.exp(log_albedo[..., None] + k[..., None] * x - log_cos_o)
+            model = np.exp(log_albedo[..., None] + k[..., None] * x - log_cos_o)  # Minnaert in log space, not laws.minnaert_factor's bits
         model[~usable] = 0.0
         model -= brightness
         model *= model
@@ -796,34 +424,13 @@ def _profile_costs(layout: PointBlocks, tangents: np.ndarray) -> np.ndarray:
 
 
 def _grid_search(layout: PointBlocks, guess_tangent, half_width=0.8, n_grid=17, n_refine=2, batch_elements=1 << 18):
-    """Coarse-to-fine grid over tangent coordinates, as ``estimate.search_light``, scored in batches of lights.
+    """:func:`~.light_search.grid_search` by :func:`_profile_costs`, each level's best node its own, lights scored in batches."""
 
-    The grid covers ``[-half_width, half_width]**2`` with ``n_grid**2``
-    nodes plus ``guess_tangent``; each refinement searches a 7x7 grid over
-    +-1 cell around the best node with a 3x finer step.
-    """
-
-    def best_of(candidates):
+    def score(candidates):
         batch = max(1, batch_elements // max(layout.n_rows, 1))
-        costs = np.concatenate([_profile_costs(layout, candidates[i : i + batch]) for i in range(0, len(candidates), batch)])
-        costs = np.where(np.isfinite(costs), costs, np.inf)
-        return candidates[int(np.argmin(costs))]
+        return np.concatenate([_profile_costs(layout, candidates[i : i + batch]) for i in range(0, len(candidates), batch)])
 
-    offsets = np.linspace(-half_width, half_width, n_grid)
-    grid = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2)
-    best = best_of(grid if guess_tangent is None else np.vstack([guess_tangent, grid]))
-    step = 2.0 * half_width / (n_grid - 1)
-    for _ in range(n_refine):
-        offsets = np.linspace(-step, step, 7)
-        best = best_of(best + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2))
-        step /= 3.0
-    return best
-
-
-def _evenly_spaced(ids, n):
-    if ids.size <= n:
-        return ids
-    return ids[np.linspace(0, ids.size - 1, n).astype(np.int64)]
+    return grid_search(score, guess_tangent, half_width=half_width, n_grid=n_grid, n_refine=n_refine, keep_best=False)
 
 
 def _lambert_guess(obs: Observations, rows):
@@ -849,9 +456,9 @@ class VarproResult(FitResult):
     Per point (NaN where not fitted): ``albedo_std``, ``minnaert_k_std``
     and ``albedo_k_cov``, the marginal (light uncertainty included)
     standard deviations and covariance. ``light_cov_tangent`` (2x2): the
-    light's covariance in tangent coordinates (``estimate.light_from_tangent``);
+    light's covariance in tangent coordinates (``core.light_from_tangent``);
     ``light_std_deg``: the RMS angular error it implies
-    (``estimate.light_std_deg``). ``noise_sigma``: the brightness noise
+    (``core.light_std_deg``). ``noise_sigma``: the brightness noise
     standard deviation used, given or estimated (``sigma_estimated``), NaN
     when a per-observation sigma was given; ``reduced_chi2``: weighted sum of
     squared residuals over the degrees of freedom (about 1 when a given
@@ -885,7 +492,7 @@ class VarproResult(FitResult):
 
 
 # --------------------------------------------------------------------------
-# The estimator
+# The estimator's stages
 # --------------------------------------------------------------------------
 
 
@@ -902,6 +509,241 @@ def _inverse_variance(obs: Observations, sigma):
     if not np.all(np.isfinite(sigma) & (sigma > 0)):
         raise ValueError("fit_varpro: every sigma must be finite and > 0")
     return 1.0 / sigma**2
+
+
+@dataclasses.dataclass
+class _Estimate:
+    """Light (tangent coordinates), flat per-point albedo and k, the points the log-space fit determined, and the last pass's sums."""
+
+    tangent: np.ndarray
+    albedo: np.ndarray
+    minnaert_k: np.ndarray
+    valid: np.ndarray
+    sums: PassSums
+
+
+@dataclasses.dataclass
+class _Solver:
+    """What the stages of :func:`fit_varpro` share: the layout, the noise model, the losses and the tolerances.
+
+    ``loss`` is the loss asked for, ``fit_loss`` the one fitted now: Huber
+    while outliers are looked for under a linear ``loss`` (a least-squares
+    fit bends towards outliers and hides them), ``loss`` once rejection has
+    started. ``stride``: every so-many |standardized residual| of a pass is
+    kept for a MAD (0: none). ``reduced_tol``: the step tolerance of the
+    log-space problem on all points, fixed at the start.
+    """
+
+    obs: Observations
+    layout: PointBlocks
+    inv_var: float | np.ndarray
+    sigma_known: bool
+    loss: Loss
+    fit_loss: Loss
+    stride: int
+    scale_floor: float
+    max_iterations: int
+    step_tol: float
+    polish: bool
+    reduced_tol: float = 0.0
+
+    @classmethod
+    def create(cls, obs, *, sigma, loss, f_scale, reject_outliers, rejection_threshold, min_observations, max_iterations, step_tol, polish, chunk_rows):
+        loss_fn = Loss(loss, f_scale)
+        if not rejection_threshold > 0:
+            raise ValueError(f"fit_varpro: rejection_threshold must be > 0, got {rejection_threshold!r}")
+        inv_var = _inverse_variance(obs, sigma)
+        layout = PointBlocks(obs, min_observations=min_observations, inv_var=inv_var, chunk_rows=chunk_rows)
+        if layout.n_points == 0 or layout.n_rows < layout.n_params:
+            raise ValueError(
+                f"fit_varpro: {layout.n_rows} usable observations of {layout.n_points} points "
+                f"cannot determine {layout.n_params} unknowns"
+            )
+        fit_loss = HUBER if reject_outliers and not loss_fn.robust else loss_fn
+        solver = cls(
+            obs=obs,
+            layout=layout,
+            inv_var=inv_var,
+            sigma_known=sigma is not None,
+            loss=loss_fn,
+            fit_loss=fit_loss,
+            stride=max(1, layout.n_rows // MAD_SAMPLES) if (fit_loss.robust or reject_outliers) else 0,
+            # Noise-scale floor in standardized units, so that noiseless data never divide by zero.
+            scale_floor=SCALE_FLOOR_RELATIVE * layout.typical_brightness,
+            max_iterations=max_iterations,
+            step_tol=step_tol,
+            polish=polish,
+        )
+        # The reduced problem only has to bring the polish close: 0.1 sigma of the light is plenty.
+        solver.reduced_tol = max(solver.step_tolerance(), 1e-2) if polish else solver.step_tolerance()
+        return solver
+
+    @property
+    def estimates_scale(self) -> bool:
+        """Whether the robust loss's scale comes from a MAD (sigma unknown)."""
+        return self.fit_loss.robust and not self.sigma_known
+
+    def variance_scale(self, sums) -> float:
+        """The noise variance in units of the weights: 1 if sigma is known, else estimated."""
+        if self.sigma_known:
+            return 1.0
+        dof = max(sums.n_rows - sums.n_params, 1)
+        value = sums.mad_sigma() ** 2 if self.fit_loss.robust else sums.chi2 / dof
+        return max(value, self.scale_floor**2)
+
+    def robust_scale(self, sums) -> float:
+        return max(sums.mad_sigma(), self.scale_floor) if self.estimates_scale else 1.0
+
+    def step_tolerance(self) -> float:
+        # IRLS converges linearly: with a robust loss, stop at steps of 0.01 sigma.
+        return max(self.step_tol, ROBUST_STEP_TOL) if self.fit_loss.robust else self.step_tol
+
+    def solve_reduced(self, layout, tangent, tol, log):
+        """The log-space problem on ``layout`` (all points or a subsample) from ``tangent``."""
+        scale = 1.0
+        if self.estimates_scale:  # the scale from the non-robust residuals at the start
+            scale = self.robust_scale(_reduced_pass(layout, tangent, self.fit_loss, 1.0, None, max(1, layout.n_rows // MAD_SAMPLES))[0])
+            log.passes += 1
+        return _solve_reduced(layout, tangent, self.fit_loss, scale, self.variance_scale, self.max_iterations, tol, log, self.stride)
+
+    def solve_joint(self, estimate: _Estimate, scale, log) -> _Estimate:
+        """The joint problem on all points, in rounds of the robust scale (one round when it is fixed)."""
+        tangent, albedo, minnaert_k = estimate.tangent, estimate.albedo, estimate.minnaert_k
+        for _ in range(MAX_SCALE_ROUNDS):
+            tangent, albedo, minnaert_k, sums = _solve_joint(
+                self.layout, tangent, albedo, minnaert_k, estimate.valid, self.fit_loss, scale, self.variance_scale,
+                self.max_iterations, self.step_tolerance(), log, self.stride,
+            )
+            new_scale = self.robust_scale(sums)
+            if not self.estimates_scale or abs(new_scale - scale) <= SCALE_ROUND_CHANGE * scale:
+                break
+            scale = new_scale
+        return _Estimate(tangent, albedo, minnaert_k, estimate.valid, sums)
+
+
+def _start_light(solver: _Solver, light_init, search_points, grid_points, log):
+    """Stage 1: the starting light's tangent coordinates (grid search or Iwano's guess, then a subsample), or ``light_init``'s."""
+    layout = solver.layout
+    if light_init is None or (isinstance(light_init, str) and light_init == "iwano"):
+        sub_ids = evenly_spaced(np.arange(layout.n_points), search_points)
+        grid_layout = layout.subset(evenly_spaced(sub_ids, grid_points))
+        guess = _lambert_guess(solver.obs, grid_layout.rows())
+        if light_init is None:
+            tangent = _grid_search(grid_layout, guess)
+        elif guess is None:
+            raise ValueError("fit_varpro: Iwano's linear fit failed on the subsample (light_init='iwano')")
+        else:
+            tangent = guess
+        if layout.n_points > sub_ids.size:
+            tangent, _ = solver.solve_reduced(layout.subset(sub_ids), tangent, solver.step_tol, log)
+        return tangent
+    if isinstance(light_init, str):
+        raise ValueError(f"fit_varpro: light_init must be None, 'iwano' or a (3,) vector, got {light_init!r}")
+    light = np.asarray(light_init, dtype=np.float64)
+    if light.shape != (3,) or not np.all(np.isfinite(light)):
+        raise ValueError(f"fit_varpro: light_init must be a finite (3,) vector, got {light_init!r}")
+    return tangent_from_light(light / np.linalg.norm(light))
+
+
+def _reduced_estimate(solver: _Solver, tangent, log) -> _Estimate:
+    """Stage 2: the reduced (log-space) problem on all points."""
+    tangent, (sums, log_albedo, minnaert_k, valid) = solver.solve_reduced(solver.layout, tangent, solver.reduced_tol, log)
+    return _Estimate(tangent, np.exp(log_albedo), minnaert_k, valid, sums)
+
+
+def _polish(solver: _Solver, estimate: _Estimate, log) -> _Estimate:
+    """Stage 3: the joint problem on the brightness residuals, or (``polish`` False) only one joint pass at the estimate."""
+    scale = solver.robust_scale(estimate.sums)
+    if solver.polish:
+        return solver.solve_joint(estimate, scale, log)
+    sums = joint_pass(solver.layout, estimate.tangent, estimate.albedo, estimate.minnaert_k, solver.fit_loss, scale, solver.stride)
+    log.passes += 1
+    return dataclasses.replace(estimate, sums=sums)
+
+
+def _reject_outliers(solver: _Solver, estimate: _Estimate, rejection_threshold, max_rounds, log) -> _Estimate:
+    """Stage 4: reject observations beyond ``rejection_threshold`` MAD sigmas and refit, until nothing changes."""
+    for _ in range(int(max_rounds)):
+        threshold = rejection_threshold * max(estimate.sums.mad_sigma(), solver.scale_floor)
+        keep_rows = np.zeros(solver.obs.n_obs, bool)
+        _keep_pass(solver.layout, estimate.tangent, estimate.albedo, estimate.minnaert_k, threshold, keep_rows)
+        log.passes += 1
+        if solver.layout.set_keep(keep_rows) == 0 and solver.fit_loss is solver.loss:
+            break
+        solver.fit_loss = solver.loss  # the refits use the loss asked for (the Huber fit only found the outliers)
+        estimate = _polish(solver, estimate if solver.polish else _reduced_estimate(solver, estimate.tangent, log), log)
+    return estimate
+
+
+def _uncertainty(solver: _Solver, estimate: _Estimate) -> dict:
+    """Stage 5: the covariances from ``J^T W J`` at the estimate, scaled by the noise variance; a dict of result fields."""
+    sums = estimate.sums
+    point_valid = estimate.valid & _point_valid(sums)
+    light_block, point_blocks, couplings, _, _ = _masked_blocks(sums, point_valid)
+    light_cov, var_albedo, var_k, cov_albedo_k = arrow_covariance(light_block, point_blocks, couplings)
+    n_params_used = 2 + 2 * int(np.count_nonzero(point_valid))
+    dof = max(sums.n_rows - n_params_used, 1)
+    noise_variance = solver.variance_scale(sums)
+    light_cov = light_cov * noise_variance
+    with np.errstate(invalid="ignore"):
+        albedo_std, k_std = np.sqrt(var_albedo * noise_variance), np.sqrt(var_k * noise_variance)
+    if solver.sigma_known:
+        noise_sigma = float(np.sqrt(1.0 / solver.inv_var)) if np.ndim(solver.inv_var) == 0 else float("nan")
+    else:
+        noise_sigma = float(np.sqrt(noise_variance))
+    return dict(
+        point_valid=point_valid,
+        albedo_std=albedo_std,
+        minnaert_k_std=k_std,
+        albedo_k_cov=cov_albedo_k * noise_variance,
+        light_cov_tangent=light_cov,
+        noise_sigma=noise_sigma,
+        reduced_chi2=float(sums.chi2 / dof),
+        observation_used=solver.layout.rows_used(solver.obs.n_obs, point_valid),
+    )
+
+
+def _result(solver: _Solver, estimate: _Estimate, uncertainty: dict, logs, start, seconds, passes) -> VarproResult:
+    """The :class:`VarproResult`: per-point values scattered to the Observations' points (NaN where not determined)."""
+    search_log, reduced_log, joint_log = logs
+    point_valid = uncertainty.pop("point_valid")
+
+    def per_point(values):
+        return solver.layout.per_point(np.where(point_valid, values, np.nan))
+
+    messages = [reduced_log.message] + ([joint_log.message] if solver.polish else [])
+    success = reduced_log.success and (joint_log.success if solver.polish else True)
+    return VarproResult(
+        method="varpro",
+        light_dir_cam=light_from_tangent(estimate.tangent),
+        albedo=per_point(estimate.albedo),
+        minnaert_k=per_point(estimate.minnaert_k),
+        n_points_fitted=int(np.count_nonzero(point_valid)),
+        n_obs=int(np.count_nonzero(uncertainty["observation_used"])),
+        cost=float(estimate.sums.cost),
+        n_iterations=search_log.iterations + reduced_log.iterations + joint_log.iterations,
+        nfev=reduced_log.passes + joint_log.passes,
+        success=bool(success),
+        message="; ".join(message for message in messages if message),
+        fit_seconds=time.perf_counter() - start,
+        solver="variable projection (log space) + joint Gauss-Newton polish, block-Schur (numpy, streamed)",
+        albedo_std=per_point(uncertainty.pop("albedo_std")),
+        minnaert_k_std=per_point(uncertainty.pop("minnaert_k_std")),
+        albedo_k_cov=per_point(uncertainty.pop("albedo_k_cov")),
+        light_std_deg=light_std_deg(estimate.tangent, uncertainty["light_cov_tangent"]),
+        sigma_estimated=not solver.sigma_known,
+        weighted_cost=float(estimate.sums.objective),
+        n_rejected=solver.layout.n_rejected(),
+        loss=solver.loss.name,
+        stage_seconds=seconds,
+        stage_passes=passes,
+        **uncertainty,
+    )
+
+
+# --------------------------------------------------------------------------
+# The estimator
+# --------------------------------------------------------------------------
 
 
 def fit_varpro(
@@ -931,7 +773,7 @@ def fit_varpro(
     Parameters
     ----------
     obs : Observations
-        As for ``estimate.fit_koizumi_lm``; rows may come in any order.
+        As for ``koizumi.fit_koizumi_lm``; rows may come in any order.
     sigma : None, float or (n_obs,) array
         Brightness noise standard deviation, one for all or per observation
         (e.g. ``np.sqrt(noise.observation_variance(obs.brightness, sensor))``).
@@ -980,177 +822,31 @@ def fit_varpro(
         the accepted and rejected steps of both stages.
     """
     start = time.perf_counter()
-    loss_fn = _Loss(loss, f_scale)
-    if not rejection_threshold > 0:
-        raise ValueError(f"fit_varpro: rejection_threshold must be > 0, got {rejection_threshold!r}")
-    inv_var = _inverse_variance(obs, sigma)
-    sigma_known = sigma is not None
-    layout = PointBlocks(obs, min_observations=min_observations, inv_var=inv_var, chunk_rows=chunk_rows)
-    if layout.n_points == 0 or layout.n_rows < layout.n_params:
-        raise ValueError(
-            f"fit_varpro: {layout.n_rows} usable observations of {layout.n_points} points "
-            f"cannot determine {layout.n_params} unknowns"
-        )
-    # With outlier rejection the outliers are found after a robust (Huber) fit even when the final
-    # fit is plain least squares: a least-squares fit bends towards outliers and hides them.
-    fit_loss = HUBER if reject_outliers and not loss_fn.robust else loss_fn
-    stride = max(1, layout.n_rows // MAD_SAMPLES) if (fit_loss.robust or reject_outliers) else 0
-    # Noise-scale floor in standardized units, so that noiseless data never divide by zero.
-    scale_floor = SCALE_FLOOR_RELATIVE * layout.typical_brightness
-
-    def estimate_scale():
-        """Whether the robust loss's scale comes from a MAD (sigma unknown)."""
-        return fit_loss.robust and not sigma_known
-
-    def variance_scale(sums):
-        """The noise variance in units of the weights: 1 if sigma is known, else estimated."""
-        if sigma_known:
-            return 1.0
-        dof = max(sums.n_rows - sums.n_params, 1)
-        value = sums.mad_sigma() ** 2 if fit_loss.robust else sums.chi2 / dof
-        return max(value, scale_floor**2)
-
-    def robust_scale(sums):
-        return max(sums.mad_sigma(), scale_floor) if estimate_scale() else 1.0
-
-    def step_tolerance():
-        # IRLS converges linearly: with a robust loss, stop at steps of 0.01 sigma.
-        return max(step_tol, ROBUST_STEP_TOL) if fit_loss.robust else step_tol
-
-    def solve_reduced(layout, tangent, tol, log):
-        scale = 1.0
-        if estimate_scale():  # the scale from the non-robust residuals at the start
-            scale = robust_scale(_reduced_pass(layout, tangent, fit_loss, 1.0, None, max(1, layout.n_rows // MAD_SAMPLES))[0])
-            log.passes += 1
-        return _solve_reduced(layout, tangent, fit_loss, scale, variance_scale, max_iterations, tol, log, stride)
-
-    def solve_joint(tangent, albedo, minnaert_k, valid, scale, log):
-        for _ in range(MAX_SCALE_ROUNDS):  # rounds of the robust scale (one round when it is fixed)
-            tangent, albedo, minnaert_k, sums = _solve_joint(
-                layout, tangent, albedo, minnaert_k, valid, fit_loss, scale, variance_scale, max_iterations, step_tolerance(), log, stride
-            )
-            new_scale = robust_scale(sums)
-            if not estimate_scale() or abs(new_scale - scale) <= SCALE_ROUND_CHANGE * scale:
-                break
-            scale = new_scale
-        return tangent, albedo, minnaert_k, sums
-
-    # The reduced problem only has to bring the polish close: 0.1 sigma of the light is plenty.
-    reduced_tol = max(step_tolerance(), 1e-2) if polish else step_tolerance()
+    solver = _Solver.create(
+        obs, sigma=sigma, loss=loss, f_scale=f_scale, reject_outliers=reject_outliers, rejection_threshold=rejection_threshold,
+        min_observations=min_observations, max_iterations=max_iterations, step_tol=step_tol, polish=polish, chunk_rows=chunk_rows,
+    )
+    logs = search_log, reduced_log, joint_log = _SolveLog(), _SolveLog(), _SolveLog()
     seconds, passes = {}, {}
 
-    # -- start: grid search and the reduced problem on a subsample -------------
     tick = time.perf_counter()
-    search_log = _SolveLog()
-    if light_init is None or (isinstance(light_init, str) and light_init == "iwano"):
-        sub_ids = _evenly_spaced(np.arange(layout.n_points), search_points)
-        grid_layout = layout.subset(_evenly_spaced(sub_ids, grid_points))
-        guess = _lambert_guess(obs, grid_layout.rows())
-        if light_init is None:
-            tangent = _grid_search(grid_layout, guess)
-        elif guess is None:
-            raise ValueError("fit_varpro: Iwano's linear fit failed on the subsample (light_init='iwano')")
-        else:
-            tangent = guess
-        if layout.n_points > sub_ids.size:
-            sub_layout = layout.subset(sub_ids)
-            tangent, _ = solve_reduced(sub_layout, tangent, step_tol, search_log)
-    elif isinstance(light_init, str):
-        raise ValueError(f"fit_varpro: light_init must be None, 'iwano' or a (3,) vector, got {light_init!r}")
-    else:
-        light = np.asarray(light_init, dtype=np.float64)
-        if light.shape != (3,) or not np.all(np.isfinite(light)):
-            raise ValueError(f"fit_varpro: light_init must be a finite (3,) vector, got {light_init!r}")
-        tangent = tangent_from_light(light / np.linalg.norm(light))
+    tangent = _start_light(solver, light_init, search_points, grid_points, search_log)
     seconds["start"] = time.perf_counter() - tick
     passes["start_subsample"] = search_log.passes
 
-    # -- the reduced (log-space) problem on all points --------------------------
     tick = time.perf_counter()
-    reduced_log = _SolveLog()
-    tangent, (sums, log_albedo, minnaert_k, valid) = solve_reduced(layout, tangent, reduced_tol, reduced_log)
-    albedo = np.exp(log_albedo)
+    estimate = _reduced_estimate(solver, tangent, reduced_log)
     seconds["reduced"] = time.perf_counter() - tick
     passes["reduced"] = reduced_log.passes
-    messages = [reduced_log.message]
-    success = reduced_log.success
 
-    # -- polish (joint, brightness residuals) and outlier rejection -------------
     tick = time.perf_counter()
-    joint_log = _SolveLog()
-    if polish:
-        tangent, albedo, minnaert_k, sums = solve_joint(tangent, albedo, minnaert_k, valid, robust_scale(sums), joint_log)
-    else:
-        sums = _joint_pass(layout, tangent, albedo, minnaert_k, fit_loss, robust_scale(sums), stride)
-        joint_log.passes += 1
-    for _ in range(int(max_rejection_rounds) if reject_outliers else 0):
-        threshold = rejection_threshold * max(sums.mad_sigma(), scale_floor)
-        keep_rows = np.zeros(obs.n_obs, bool)
-        _keep_pass(layout, tangent, albedo, minnaert_k, threshold, keep_rows)
-        joint_log.passes += 1
-        if layout.set_keep(keep_rows) == 0 and fit_loss is loss_fn:
-            break
-        fit_loss = loss_fn  # the refits use the loss asked for (the Huber fit only found the outliers)
-        if polish:
-            tangent, albedo, minnaert_k, sums = solve_joint(tangent, albedo, minnaert_k, valid, robust_scale(sums), joint_log)
-        else:
-            tangent, (sums, log_albedo, minnaert_k, valid) = solve_reduced(layout, tangent, reduced_tol, joint_log)
-            albedo = np.exp(log_albedo)
-            sums = _joint_pass(layout, tangent, albedo, minnaert_k, fit_loss, robust_scale(sums), stride)
-            joint_log.passes += 1
+    estimate = _polish(solver, estimate, joint_log)
+    if reject_outliers:
+        estimate = _reject_outliers(solver, estimate, rejection_threshold, max_rejection_rounds, joint_log)
     seconds["polish"] = time.perf_counter() - tick
     passes["polish"] = joint_log.passes
-    if polish:
-        messages.append(joint_log.message)
-        success = success and joint_log.success
 
-    # -- uncertainty from J^T W J at the estimate --------------------------------
     tick = time.perf_counter()
-    point_valid = valid & _point_valid(sums)
-    light_block, point_blocks, couplings, _, _ = _masked_blocks(sums, point_valid)
-    light_cov, var_albedo, var_k, cov_albedo_k = arrow_covariance(light_block, point_blocks, couplings)
-    n_params_used = 2 + 2 * int(np.count_nonzero(point_valid))
-    dof = max(sums.n_rows - n_params_used, 1)
-    noise_variance = variance_scale(sums)
-    light_cov = light_cov * noise_variance
-    with np.errstate(invalid="ignore"):
-        albedo_std, k_std = np.sqrt(var_albedo * noise_variance), np.sqrt(var_k * noise_variance)
-    if sigma_known:
-        noise_sigma = float(np.sqrt(1.0 / inv_var)) if np.ndim(inv_var) == 0 else float("nan")
-    else:
-        noise_sigma = float(np.sqrt(noise_variance))
-    observation_used = layout.rows_used(obs.n_obs, point_valid)
+    uncertainty = _uncertainty(solver, estimate)
     seconds["uncertainty"] = time.perf_counter() - tick
-
-    def per_point(values):
-        return layout.per_point(np.where(point_valid, values, np.nan))
-
-    return VarproResult(
-        method="varpro",
-        light_dir_cam=light_from_tangent(tangent),
-        albedo=per_point(albedo),
-        minnaert_k=per_point(minnaert_k),
-        n_points_fitted=int(np.count_nonzero(point_valid)),
-        n_obs=int(np.count_nonzero(observation_used)),
-        cost=float(sums.cost),
-        n_iterations=search_log.iterations + reduced_log.iterations + joint_log.iterations,
-        nfev=reduced_log.passes + joint_log.passes,
-        success=bool(success),
-        message="; ".join(message for message in messages if message),
-        fit_seconds=time.perf_counter() - start,
-        solver="variable projection (log space) + joint Gauss-Newton polish, block-Schur (numpy, streamed)",
-        albedo_std=per_point(albedo_std),
-        minnaert_k_std=per_point(k_std),
-        albedo_k_cov=per_point(cov_albedo_k * noise_variance),
-        light_cov_tangent=light_cov,
-        light_std_deg=light_std_deg(tangent, light_cov),
-        noise_sigma=noise_sigma,
-        sigma_estimated=not sigma_known,
-        reduced_chi2=float(sums.chi2 / dof),
-        weighted_cost=float(sums.objective),
-        observation_used=observation_used,
-        n_rejected=layout.n_rejected(),
-        loss=loss_fn.name,
-        stage_seconds=seconds,
-        stage_passes=passes,
-    )
+    return _result(solver, estimate, uncertainty, logs, start, seconds, passes)

@@ -58,6 +58,7 @@ import numpy as np
 from asteroid_photometry.core import files
 from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, Observations
 from asteroid_photometry.from_images import cloud as cloud_lib
+from asteroid_photometry.reflectance.laws import minnaert_brightness
 from asteroid_photometry.world.cameras import Intrinsics
 
 log = logging.getLogger(__name__)
@@ -87,9 +88,10 @@ def spin_axis(camera_centres) -> np.ndarray:
 
 
 def _model(normals_obs, light_b, view_b, albedo_obs, k_obs):
+    """The Minnaert brightness of each observation (cosines floored at ``COS_FLOOR``, so every row is lit), and the cosines."""
     cos_i = np.maximum(np.einsum("ij,ij->i", normals_obs, light_b), COS_FLOOR)
     cos_o = np.maximum(np.einsum("ij,ij->i", normals_obs, view_b), COS_FLOOR)
-    return albedo_obs * cos_i**k_obs * cos_o ** (k_obs - 1.0), cos_i, cos_o
+    return minnaert_brightness(albedo_obs, k_obs, cos_i, cos_o), cos_i, cos_o
 
 
 def refine_points(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam, *, n_iterations=15, min_observations=8, max_tilt_deg=45.0, normal_prior_deg=10.0, fit_albedo_k=True, noise_var=None, axis=None):

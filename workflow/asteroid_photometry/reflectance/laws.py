@@ -36,7 +36,7 @@ import types
 
 import numpy as np
 
-__all__ = ["PhotometricModel", "MODELS", "get_model", "minnaert_brightness", "NUMPY_OPS", "drjit_ops", "hapke_radiance_factor", "geometry_cosines"]
+__all__ = ["PhotometricModel", "MODELS", "get_model", "minnaert_brightness", "minnaert_factor", "NUMPY_OPS", "drjit_ops", "hapke_radiance_factor", "geometry_cosines"]
 
 # Cosines are floored here inside the laws: grazing rows never reach the fits
 # (observe keeps cos >= 0.1), the floor only keeps logs and divisions finite.
@@ -87,8 +87,8 @@ def _lunar_lambert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
 
 
 def _minnaert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
-    k = p["minnaert_k"]
-    return p["albedo"] * ops.exp(k * ops.log(cos_i) + (k - 1.0) * ops.log(cos_o))
+    # The log form (minnaert_factor), not minnaert_brightness's powers: the two differ in the last bits.
+    return p["albedo"] * minnaert_factor(p["minnaert_k"], ops.log(cos_i), ops.log(cos_o), ops)
 
 
 def _henyey_greenstein(cos_g, asymmetry, ops):
@@ -293,8 +293,24 @@ def get_model(name: str) -> PhotometricModel:
     return MODELS[name]
 
 
+def minnaert_factor(minnaert_k, log_cos_i, log_cos_o, ops=NUMPY_OPS):
+    """``cos_i**k cos_o**(k - 1)`` from the cosines' logs: ``exp(k log cos_i + (k - 1) log cos_o)``.
+
+    The log form of the Minnaert law, for callers that have the logs already
+    (the model family's ``minnaert``, numpy or Dr.Jit ``ops``; the joint
+    fit's residuals in ``estimation.koizumi``). Not bit-for-bit the same as
+    the power form of :func:`minnaert_brightness`.
+    """
+    return ops.exp(minnaert_k * log_cos_i + (minnaert_k - 1.0) * log_cos_o)
+
+
 def minnaert_brightness(albedo, minnaert_k, cos_incidence, cos_emission) -> np.ndarray:
-    """``albedo * cos_i**k * cos_o**(k - 1)``, zero where ``cos_i <= 0`` (unlit)."""
+    """``albedo * cos_i**k * cos_o**(k - 1)``, zero where ``cos_i <= 0`` (unlit).
+
+    The package's Minnaert law on plain cosines (numpy powers); the log form
+    is :func:`minnaert_factor`. The Mitsuba plugin of ``world.render`` writes
+    the same law as its own Dr.Jit expression.
+    """
     cos_i = np.asarray(cos_incidence, dtype=np.float64)
     lit = cos_i > 0.0
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -149,7 +149,11 @@ def register_minnaert_plugin():
     import mitsuba as mi
 
     class MinnaertBSDF(one_sided_diffuse_bsdf()):
-        """``f_r = albedo / pi * (cos_i cos_o)^(k - 1)``, one-sided, reciprocal."""
+        """``f_r = albedo / pi * (cos_i cos_o)^(k - 1)``, one-sided, reciprocal.
+
+        Its own Dr.Jit expression of the Minnaert law (the numpy one is
+        ``reflectance.laws.minnaert_brightness``).
+        """
 
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
