@@ -238,7 +238,7 @@ RECONSTRUCTION = {
 
 
 def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_image_set, tmp_path):
-    from asteroid_photometry.experiments.table2 import fit_cloud_stage, reconstruct_stage, refine_stage, register_stage, write_table2
+    from asteroid_photometry.experiments.table2 import CloudStageInputs, fit_cloud_stage, reconstruct_stage, refine_stage, register_stage, write_table2
 
     reconstruct_stage(four_image_set, tmp_path / "model", True, RECONSTRUCTION, 1)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
@@ -249,7 +249,7 @@ def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_imag
     assert json.loads((tmp_path / "reg.json").read_text()) == {"status": "failed", "reason": status["reason"], "registration_ok": False}
     refine_stage(tmp_path / "reg.npz", tmp_path / "model", four_image_set, RECONSTRUCTION, tmp_path / "refined.npz")
     fit_cloud_stage(
-        tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", four_image_set, tmp_path / "no_shape.npz", tmp_path / "refined.npz",
+        CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", four_image_set, tmp_path / "no_shape.npz", tmp_path / "refined.npz"),
         "koizumi_lm", "light10_albedo0.6_k0.8", "on", RECONSTRUCTION, tmp_path / "row.json", tmp_path / "errors.npz",
     )
     row = json.loads((tmp_path / "row.json").read_text())

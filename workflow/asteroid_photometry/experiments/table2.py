@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -293,14 +293,187 @@ def plausible_points(result: estimation.FitResult) -> estimation.FitResult:
     )
 
 
+# ---------------------------------------------------------------- fit_cloud: the estimators on the cloud, scored
+
+
+@dataclass(frozen=True)
+class CloudStageInputs:
+    """The files :func:`fit_cloud_stage` reads: the outputs of ``register_stage`` (``registration_npz``,
+    ``registration_json``), ``reconstruct_stage`` (``reconstruction_dir``) and ``refine_stage`` (``refined_npz``),
+    the rendered set (``render_dir``) and the shape model (``shape_npz``)."""
+
+    registration_npz: str | Path
+    registration_json: str | Path
+    reconstruction_dir: str | Path
+    render_dir: str | Path
+    shape_npz: str | Path
+    refined_npz: str | Path
+
+
+@dataclass(frozen=True)
+class CloudStage:
+    """The inputs of :func:`fit_cloud_stage`, read and checked.
+
+    ``registration``: the registration's summary; ``report``: the
+    reconstruction's; ``oriented``: the cloud in its own frame and
+    ``transform`` from it to the body frame; ``frames`` and ``images``: the
+    rendered set; ``obs``: the cloud's samples of the images; ``pure``: the
+    refined cloud and its pure samples.
+    """
+
+    render_dir: str | Path
+    registration: dict
+    report: dict
+    recon: reconstruct.SparseReconstruction
+    shape: dict
+    oriented: cloud_lib.OrientedCloud
+    transform: np.ndarray
+    frames: dict
+    images: object
+    obs: estimation.Observations
+    pure: refine.PureSampleCloud
+
+
+def read_cloud_stage(inputs: CloudStageInputs, settings: dict) -> CloudStage:
+    """The stage's inputs; raises the recorded :class:`DataFailure` of a stage before that failed, or one for too few observations."""
+    registration = json.loads(Path(inputs.registration_json).read_text())
+    check_status(registration, inputs.registration_json)  # a failed registration's transform is wrong: nothing is scored through it
+    with np.load(inputs.refined_npz) as data:
+        check_npz(data, inputs.refined_npz)
+    recon = read_reconstruction(inputs.reconstruction_dir)
+    shape = load_shape_npz(inputs.shape_npz)
+    with np.load(inputs.registration_npz) as data:
+        check_npz(data, inputs.registration_npz)
+        oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+        transform = data["transform"]
+    frames, images = read_rendered_images(inputs.render_dir)
+    obs, _ = cloud_observations_of(oriented, recon, images, settings)
+    require_cloud_observations(obs, settings, f"the reconstruction ({recon.report.n_images_registered} images, {len(oriented.points)} cloud points)")
+    report = json.loads((Path(inputs.reconstruction_dir) / "report.json").read_text())
+    # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
+    pure = refine.PureSampleCloud.load(inputs.refined_npz)
+    return CloudStage(inputs.render_dir, registration, report, recon, shape, oriented, transform, frames, images, obs, pure)
+
+
+@dataclass(frozen=True)
+class CloudTruth:
+    """The truth at cloud points: each point in the body frame (``points_body``), its closest point on the true
+    surface (``surface_body``) and facet (``facets``), that facet's ``albedo``, ``minnaert_k`` and ``normals``;
+    the true light (``light_dir_cam``)."""
+
+    points_body: np.ndarray
+    surface_body: np.ndarray
+    facets: np.ndarray
+    albedo: np.ndarray
+    minnaert_k: np.ndarray
+    normals: np.ndarray
+    light_dir_cam: np.ndarray
+
+    def scoring(self, light_dir_cam) -> metrics.Truth:
+        """The truth a fit at these points is scored against, under the true light ``light_dir_cam``."""
+        return metrics.Truth(light_dir_cam=light_dir_cam, albedo=self.albedo, minnaert_k=self.minnaert_k)
+
+
+def truth_at_points(stage: CloudStage, points, query: mesh.SurfaceQuery) -> CloudTruth:
+    """The truth (``evaluation.truth``) at cloud-frame ``points``, through the registration; ``query``: the shape model."""
+    points_body = register.transform_points(stage.transform, points)
+    surface_body, facets = query.closest(points_body)
+    albedo, minnaert_k, normals, light = truth_for_facets(facets, stage.shape, stage.frames, stage.render_dir)
+    return CloudTruth(points_body, surface_body, facets, albedo, minnaert_k, normals, light)
+
+
+@dataclass(frozen=True)
+class CloudFits:
+    """The estimator's fits, implausible points marked unfitted (:func:`plausible_points`): on the cloud
+    (``before``) and on the refined cloud (``after``); ``joint``: after refinement, koizumi_lm's own joint fit
+    with the light free (else ``after``); ``refit_seconds``: the wall time of the fits after refinement."""
+
+    before: estimation.FitResult
+    after: estimation.FitResult
+    joint: estimation.FitResult
+    refit_seconds: float
+
+
+def estimate_before_refinement(stage: CloudStage, method: str, known_k: float) -> estimation.FitResult:
+    """The estimator on the cloud's samples."""
+    return plausible_points(run_estimator(stage.obs, method, known_k=known_k, robust=True))
+
+
+def estimate_after_refinement(stage: CloudStage, method: str, known_k: float) -> tuple[estimation.FitResult, estimation.FitResult, float]:
+    """The estimator on the refined cloud's pure samples: (``after``, ``joint``, seconds) as in :class:`CloudFits`."""
+    pure = stage.pure
+    tick = time.perf_counter()
+    if method == "koizumi_lm":
+        # Two steps: the refinement's light (one k for the body), then the paper's per-point albedo and k under it.
+        # The paper's joint fit, light free, is kept beside it (columns *_refined_joint).
+        joint = plausible_points(estimation.fit_koizumi_lm(pure.observations, light_init=pure.light_dir_cam))
+        after = estimation.fit_koizumi_lm(pure.observations, light_init=pure.refined_light_dir_cam, hold_light=True)
+    else:
+        joint, after = None, run_estimator(pure.observations, method, known_k=known_k, robust=True)
+    refit_seconds = time.perf_counter() - tick
+    after = plausible_points(after)
+    joint = after if joint is None else joint
+    return after, joint, refit_seconds
+
+
+def refinement_scores(set_id: str, priors: str, method: str, stage: CloudStage, fits: CloudFits, truth: CloudTruth, truth_refined: CloudTruth) -> tuple[dict, dict]:
+    """The row's scores of the fits after refinement, and the per-point errors before and after (the errors file's arrays).
+
+    ``truth`` and ``truth_refined``: the truth at the cloud's and the refined
+    cloud's points. The row's scores of the fit before refinement are
+    ``metrics.summary_row``'s, made before.
+    """
+    before, after, joint, pure, transform = fits.before, fits.after, fits.joint, stage.pure, stage.transform
+    light_true = truth.light_dir_cam
+    spin_axis_cam = true_poses(stage.frames)[0, :3, :3] @ [0.0, 0.0, 1.0]
+    scores = {}
+    after_row = metrics.summary_row(set_id, after, truth_refined.scoring(light_true))
+    normals_before = quality.normal_errors_deg(mesh.transform_normals(transform, stage.oriented.normals), truth.normals)
+    normals_after = quality.normal_errors_deg(mesh.transform_normals(transform, pure.normals), truth_refined.normals)
+    scores.update({f"{key}_refined": after_row[key] for key in ("light_deg_est", "light_deg_err", "light_dir_err_deg", "albedo_est", "albedo_err", "albedo_rmse", "k_est", "k_err", "k_rmse", "n_points", "n_obs")})
+    joint_row = metrics.summary_row(set_id, joint, truth_refined.scoring(light_true))
+    scores.update({f"{key}_refined_joint": joint_row[key] for key in ("light_dir_err_deg", "albedo_err", "k_err")})
+    scores["refined_light_source"] = "refinement" if method == "koizumi_lm" else "estimator"
+    scores["refinement_light_err_deg"] = float(estimation.angle_between_deg(pure.refined_light_dir_cam, light_true))
+    scores["refinement_k_err"] = pure.refined_minnaert_k - float(np.median(truth_refined.minnaert_k))
+    # The check on the one-k light that needs no truth: the per-point k's robust spread under it.
+    fitted_k = after.minnaert_k[np.isfinite(after.minnaert_k)]
+    scores["k_spread_refined"] = float(1.4826 * np.median(np.abs(fitted_k - np.median(fitted_k)))) if fitted_k.size else float("nan")
+    if method == "koizumi_lm" and scores["k_spread_refined"] > K_SPREAD_WARNING:
+        log.warning(
+            "set %s, priors %s: the per-point k after refinement spreads by %.3f (robust std), more than %g: the refinement's light "
+            "assumes one k for the body, and on a body whose k varies it is off by up to degrees (README, Table 2 item 7)",
+            set_id, priors, scores["k_spread_refined"], K_SPREAD_WARNING,
+        )
+    for suffix, result in (("", before), ("_refined", after)):
+        azimuth, elevation = metrics.light_error_components_deg(result.light_dir_cam, light_true, spin_axis_cam)
+        scores[f"light_err_azimuth_deg{suffix}"], scores[f"light_err_elevation_deg{suffix}"] = azimuth, elevation
+    scores.update(
+        priors=priors,
+        normal_err_deg_median=float(np.nanmedian(normals_before)),
+        normal_err_deg_median_refined=float(np.nanmedian(normals_after)),
+        refit_seconds=fits.refit_seconds,
+        refine_candidates=pure.n_candidates,
+        refine_accepted=int(len(pure.points)),
+        refine_distance_m_median=float(np.median(np.linalg.norm(truth_refined.surface_body - truth_refined.points_body, axis=1))),
+    )
+    errors = dict(
+        points_body=truth.points_body, albedo_error=before.albedo - truth.albedo, k_error=before.minnaert_k - truth.minnaert_k,
+        normal_error_deg=normals_before, points_body_refined=truth_refined.points_body,
+        albedo_error_refined=after.albedo - truth_refined.albedo, k_error_refined=after.minnaert_k - truth_refined.minnaert_k,
+        normal_error_deg_refined=normals_after,
+    )
+    return scores, errors
+
+
 ORACLE_COLUMNS = ("light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse")
 
 
-def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: metrics.Truth, shape: dict, frames: dict, recon, images, settings: dict, known_k: float) -> dict:
+def oracle_rows(method: str, stage: CloudStage, truth: CloudTruth, settings: dict, known_k: float) -> dict:
     """Where the cloud's error comes from: the same estimator with the truth put in, one part at a time.
 
-    ``surface_body`` and ``facets``: each registered point's closest point on
-    the true surface (body frame) and its facet, whose values ``truth`` holds.
+    ``truth``: at each registered point, its closest point on the true
+    surface (body frame) and that point's facet, albedo and k.
     ``true_normals``: the reconstructed points and cameras, each point's normal
     replaced by its closest facet's. ``true_surface``: each point also moved
     to its closest point on the true surface, still seen through the
@@ -308,13 +481,15 @@ def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: m
     the true cameras as well (the registered images only); what is left then
     is the sampling itself, a point anywhere on a facet of about two pixels
     against the pure pixels of Table 1. All need the registration
-    (``transform``: cloud frame to body frame).
+    (``stage.transform``: cloud frame to body frame).
     """
+    oriented, recon, frames, images, surface_body = stage.oriented, stage.recon, stage.frames, stage.images, truth.surface_body
+    scoring_truth = truth.scoring(truth.light_dir_cam)
     poses = recon.body_to_camera()
     all_true_poses = true_poses(frames)
     true_cameras = {index: all_true_poses[index] for index in poses}
-    body_to_cloud = np.linalg.inv(transform)
-    normals_body = shape["normals"][facets]
+    body_to_cloud = np.linalg.inv(stage.transform)
+    normals_body = stage.shape["normals"][truth.facets]
     row = {}
     # (name, points in the frame of the cameras, those cameras, their intrinsics, body to that frame)
     for name, points, cameras, intrinsics, body_to_frame in (
@@ -327,7 +502,7 @@ def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: m
             swapped, cameras, intrinsics, images, min_cos_emission=settings["min_cos_emission"], min_observations=settings["min_observations_per_point"],
             purity_tolerance=settings.get("purity_tolerance"),
         )
-        fitted = metrics.summary_row("", plausible_points(run_estimator(obs, method, known_k=known_k, robust=True)), truth)
+        fitted = metrics.summary_row("", plausible_points(run_estimator(obs, method, known_k=known_k, robust=True)), scoring_truth)
         row.update({f"{key}_{name}": fitted[key] for key in ORACLE_COLUMNS})
     return row
 
@@ -338,24 +513,19 @@ def oracle_rows(method: str, oriented, transform, surface_body, facets, truth: m
 K_SPREAD_WARNING = 0.015
 
 
-def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method: str, set_id: str, priors: str, settings: dict, out_json, out_npz) -> None:
+def fit_cloud_stage(inputs: CloudStageInputs, method: str, set_id: str, priors: str, settings: dict, out_json, out_npz) -> None:
     """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``); scored against the shape model.
 
-    A set that failed here or before (reconstruction, registration,
-    refinement) gets a row with its ``status`` (the reason), what is known
-    of its reconstruction and registration, and no estimates.
+    Writes the set's row of Table 2 (``out_json``) and its per-point errors
+    (``out_npz``). A set that failed here or before (reconstruction,
+    registration, refinement) gets a row with its ``status`` (the reason),
+    what is known of its reconstruction and registration, and no estimates.
     """
     try:
-        row, errors = _fit_cloud(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method, set_id, priors, settings)
+        row, errors = _fit_cloud(inputs, method, set_id, priors, settings)
     except DataFailure as failure:
         reason = record("fit_cloud", failure)
-        row = {"set_id": set_id, "priors": priors, "method": method, "status": table_status(reason)}
-        report_path = Path(reconstruction_dir) / "report.json"
-        if report_path.exists():
-            report = json.loads(report_path.read_text())
-            row.update(n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"])
-        registration = json.loads(Path(registration_json).read_text())
-        row.update({key: value for key, value in registration.items() if key not in ("status", "reason")})
+        row = _failed_row(inputs, method, set_id, priors, reason)
         write_failed_npz(out_npz, reason)
         files.write_json(out_json, row)
         return
@@ -364,91 +534,39 @@ def fit_cloud_stage(registration_npz, registration_json, reconstruction_dir, ren
     log.info("table 2 row: %s", json.dumps(row))
 
 
-def _fit_cloud(registration_npz, registration_json, reconstruction_dir, render_dir, shape_npz, refined_npz, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
-    registration = json.loads(Path(registration_json).read_text())
-    check_status(registration, registration_json)  # a failed registration's transform is wrong: nothing is scored through it
-    with np.load(refined_npz) as data:
-        check_npz(data, refined_npz)
-    recon = read_reconstruction(reconstruction_dir)
-    shape = load_shape_npz(shape_npz)
-    with np.load(registration_npz) as data:
-        check_npz(data, registration_npz)
-        oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
-        transform = data["transform"]
-    frames, images = read_rendered_images(render_dir)
-    obs, _ = cloud_observations_of(oriented, recon, images, settings)
-    require_cloud_observations(obs, settings, f"the reconstruction ({recon.report.n_images_registered} images, {len(oriented.points)} cloud points)")
-    query = register.SurfaceQuery(shape["vertices_m"], shape["faces"])
-    points_body = register.transform_points(transform, oriented.points)
-    surface_body, facets = query.closest(points_body)
-    albedo_true, k_true, normals_true, light_true = truth_for_facets(facets, shape, frames, render_dir)
-    truth = metrics.Truth(light_dir_cam=light_true, albedo=albedo_true, minnaert_k=k_true)
-    spin_axis_cam = true_poses(frames)[0, :3, :3] @ [0.0, 0.0, 1.0]
+def _failed_row(inputs: CloudStageInputs, method: str, set_id: str, priors: str, reason: str) -> dict:
+    """The row of a set that failed: its status, and what its reconstruction and registration recorded."""
+    row = {"set_id": set_id, "priors": priors, "method": method, "status": table_status(reason)}
+    report_path = Path(inputs.reconstruction_dir) / "report.json"
+    if report_path.exists():
+        report = json.loads(report_path.read_text())
+        row.update(n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"])
+    registration = json.loads(Path(inputs.registration_json).read_text())
+    row.update({key: value for key, value in registration.items() if key not in ("status", "reason")})
+    return row
 
-    known_k = float(np.median(k_true))  # Iwano's baseline is given k
-    report = json.loads((Path(reconstruction_dir) / "report.json").read_text())
-    before = plausible_points(run_estimator(obs, method, known_k=known_k, robust=True))
-    row = metrics.summary_row(set_id, before, truth)
 
-    # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
-    pure = refine.PureSampleCloud.load(refined_npz)
-    tick = time.perf_counter()
-    if method == "koizumi_lm":
-        # Two steps: the refinement's light (one k for the body), then the paper's per-point albedo and k under it.
-        # The paper's joint fit, light free, is kept beside it (columns *_refined_joint).
-        joint = plausible_points(estimation.fit_koizumi_lm(pure.observations, light_init=pure.light_dir_cam))
-        after = estimation.fit_koizumi_lm(pure.observations, light_init=pure.refined_light_dir_cam, hold_light=True)
-    else:
-        joint, after = None, run_estimator(pure.observations, method, known_k=known_k, robust=True)
-    refit_seconds = time.perf_counter() - tick
-    after = plausible_points(after)
-    joint = after if joint is None else joint
-    refined_body = register.transform_points(transform, pure.points)
-    refined_surface, refined_facets = query.closest(refined_body)
-    albedo_true_refined, k_true_refined, normals_true_refined, _ = truth_for_facets(refined_facets, shape, frames, render_dir)
-    after_row = metrics.summary_row(set_id, after, metrics.Truth(light_dir_cam=light_true, albedo=albedo_true_refined, minnaert_k=k_true_refined))
-    normals_before = quality.normal_errors_deg(mesh.transform_normals(transform, oriented.normals), normals_true)
-    normals_after = quality.normal_errors_deg(mesh.transform_normals(transform, pure.normals), normals_true_refined)
-    row.update({f"{key}_refined": after_row[key] for key in ("light_deg_est", "light_deg_err", "light_dir_err_deg", "albedo_est", "albedo_err", "albedo_rmse", "k_est", "k_err", "k_rmse", "n_points", "n_obs")})
-    joint_row = metrics.summary_row(set_id, joint, metrics.Truth(light_dir_cam=light_true, albedo=albedo_true_refined, minnaert_k=k_true_refined))
-    row.update({f"{key}_refined_joint": joint_row[key] for key in ("light_dir_err_deg", "albedo_err", "k_err")})
-    row["refined_light_source"] = "refinement" if method == "koizumi_lm" else "estimator"
-    row["refinement_light_err_deg"] = float(estimation.angle_between_deg(pure.refined_light_dir_cam, light_true))
-    row["refinement_k_err"] = pure.refined_minnaert_k - float(np.median(k_true_refined))
-    # The check on the one-k light that needs no truth: the per-point k's robust spread under it.
-    fitted_k = after.minnaert_k[np.isfinite(after.minnaert_k)]
-    row["k_spread_refined"] = float(1.4826 * np.median(np.abs(fitted_k - np.median(fitted_k)))) if fitted_k.size else float("nan")
-    if method == "koizumi_lm" and row["k_spread_refined"] > K_SPREAD_WARNING:
-        log.warning(
-            "set %s, priors %s: the per-point k after refinement spreads by %.3f (robust std), more than %g: the refinement's light "
-            "assumes one k for the body, and on a body whose k varies it is off by up to degrees (README, Table 2 item 7)",
-            set_id, priors, row["k_spread_refined"], K_SPREAD_WARNING,
-        )
-    for suffix, result in (("", before), ("_refined", after)):
-        azimuth, elevation = metrics.light_error_components_deg(result.light_dir_cam, light_true, spin_axis_cam)
-        row[f"light_err_azimuth_deg{suffix}"], row[f"light_err_elevation_deg{suffix}"] = azimuth, elevation
-    row.update(
-        priors=priors,
-        normal_err_deg_median=float(np.nanmedian(normals_before)),
-        normal_err_deg_median_refined=float(np.nanmedian(normals_after)),
-        refit_seconds=refit_seconds,
-        refine_candidates=pure.n_candidates,
-        refine_accepted=int(len(pure.points)),
-        refine_distance_m_median=float(np.median(np.linalg.norm(refined_surface - refined_body, axis=1))),
-    )
+def _fit_cloud(inputs: CloudStageInputs, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
+    """The set's row and its per-point errors: the inputs read, the truth looked up, the estimates made and scored."""
+    stage = read_cloud_stage(inputs, settings)
+    query = register.SurfaceQuery(stage.shape["vertices_m"], stage.shape["faces"])
+    truth = truth_at_points(stage, stage.oriented.points, query)
+    known_k = float(np.median(truth.minnaert_k))  # Iwano's baseline is given k
+    before = estimate_before_refinement(stage, method, known_k)
+    # Scored at once: a fit of no point fails the set here, before the fits after refinement are made.
+    row = metrics.summary_row(set_id, before, truth.scoring(truth.light_dir_cam))
+    fits = CloudFits(before, *estimate_after_refinement(stage, method, known_k))
+    truth_refined = truth_at_points(stage, stage.pure.points, query)
+    scores, errors = refinement_scores(set_id, priors, method, stage, fits, truth, truth_refined)
+    row.update(scores)
+    report = stage.report
     row.update(
         n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"],
         cam_pos_rms_m=report.get("cam_pos_rms_m"), cam_pos_true_rms_m=report.get("cam_pos_true_rms_m"), prior_overfit=report.get("prior_overfit"),
     )
-    row.update(registration)
+    row.update(stage.registration)
     row["status"] = table_status()
-    row.update(oracle_rows(method, oriented, transform, surface_body, facets, truth, shape, frames, recon, images, settings, known_k))
-    errors = dict(
-        points_body=points_body, albedo_error=before.albedo - albedo_true, k_error=before.minnaert_k - k_true,
-        normal_error_deg=normals_before, points_body_refined=refined_body,
-        albedo_error_refined=after.albedo - albedo_true_refined, k_error_refined=after.minnaert_k - k_true_refined,
-        normal_error_deg_refined=normals_after,
-    )
+    row.update(oracle_rows(method, stage, truth, settings, known_k))
     return row, errors
 
 

@@ -709,6 +709,108 @@ def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: i
     return {"extraction": extraction, "matching": matching, "verification": verification, "mapping": mapping}
 
 
+@dataclass(frozen=True)
+class _Workspace:
+    """Where one reconstruction works: the 8-bit images, the COLMAP database and the mapper's models."""
+
+    image_dir: Path
+    database_path: Path
+    mapper_dir: Path
+
+    @classmethod
+    def fresh(cls, work_dir) -> "_Workspace":
+        """The workspace under ``work_dir``, each of its parts removed if present."""
+        work_dir = Path(work_dir)
+        workspace = cls(work_dir / "images", work_dir / "database.db", work_dir / "mapper")
+        for directory in (workspace.image_dir, workspace.mapper_dir):  # only what this function writes: a rerun starts clean
+            shutil.rmtree(directory, ignore_errors=True)
+        workspace.database_path.unlink(missing_ok=True)
+        workspace.mapper_dir.mkdir(parents=True)
+        return workspace
+
+
+def _extract_features(workspace: _Workspace, names: list[str], intrinsics: Intrinsics, extraction_options) -> None:
+    """A new database of the images (one pinhole camera, the known intrinsics), and their SIFT features."""
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    reader.camera_params = f"{intrinsics.focal_px!r},{intrinsics.focal_px!r},{intrinsics.cx!r},{intrinsics.cy!r}"
+    # The images enter the database one by one in set order first: the extractor numbers images in the
+    # order its threads finish them, and the mapper's choices (initial pair, next image) follow the ids.
+    with pycolmap.Database.open(workspace.database_path):  # a new, empty database
+        pass
+    pycolmap.import_images(workspace.database_path, workspace.image_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader)
+    pycolmap.extract_features(
+        workspace.database_path, workspace.image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader, extraction_options=extraction_options, device=pycolmap.Device.cpu,
+    )
+
+
+def _keypoints_and_priors(database_path, prior_centres, camera_position_sigma_m: float, tie_point_sigma_px: float) -> dict[str, int]:
+    """The number of keypoints of each image (by name); the navigation priors ``prior_centres`` (None: none) written as pose priors."""
+    import pycolmap
+
+    with pycolmap.Database.open(database_path) as database:
+        image_ids = {image.name: image.image_id for image in database.read_all_images()}
+        n_keypoints = {name: database.num_keypoints_for_image(image_id) for name, image_id in image_ids.items()}
+        if prior_centres is not None:
+            covariance = prior_covariance(camera_position_sigma_m, tie_point_sigma_px)
+            for image in database.read_all_images():
+                database.write_pose_prior(
+                    pycolmap.PosePrior(
+                        corr_data_id=image.data_id, position=prior_centres[image_index(image.name)],
+                        position_covariance=covariance, coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+                    )
+                )
+    log.info("SIFT: %d to %d keypoints per image (median %d)", min(n_keypoints.values()), max(n_keypoints.values()), int(np.median(list(n_keypoints.values()))))
+    return n_keypoints
+
+
+def _verified_pairs(database_path) -> int:
+    """The number of image pairs the matching verified."""
+    import pycolmap
+
+    with pycolmap.Database.open(database_path) as database:
+        n_verified_pairs = database.num_verified_image_pairs()
+    log.info("%d verified image pairs", n_verified_pairs)
+    return n_verified_pairs
+
+
+def _largest_model(models: dict, n_images: int, n_verified_pairs: int):
+    """The mapper's model with the most registered images; :class:`DataFailure` if it has fewer than ``MIN_REGISTERED_IMAGES``."""
+    sizes = {key: model.num_reg_images() for key, model in models.items()}
+    if max(sizes.values(), default=0) < MIN_REGISTERED_IMAGES:
+        from asteroid_photometry.core.failures import DataFailure
+
+        raise DataFailure(
+            f"pycolmap registered {max(sizes.values(), default=0)} of {n_images} images in its largest model "
+            f"(at least {MIN_REGISTERED_IMAGES} needed; {n_verified_pairs} verified image pairs)"
+        )
+    model = models[max(sizes, key=sizes.get)]
+    log.info("mapper: %d model(s) with %s registered images; keeping the largest", len(models), sorted(sizes.values(), reverse=True))
+    return model
+
+
+def _final_bundle_adjustment(model, prior_centres, camera_position_sigma_m: float, tie_point_sigma_px: float, intrinsics_mode: str, seed: int) -> None:
+    """``bundle_adjust`` of the model, with the navigation priors ``prior_centres`` of its registered images (None: none)."""
+    index_by_image_id = {image_id: image_index(model.image(image_id).name) for image_id in model.reg_image_ids()}
+    priors_by_image_id = {image_id: prior_centres[index] for image_id, index in index_by_image_id.items()} if prior_centres is not None else None
+    bundle_adjust(
+        model, priors_by_image_id, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px,
+        refine_intrinsics=intrinsics_mode == "refine", num_threads=MAPPING_THREADS, seed=seed,
+    )
+
+
+def _warn_if_far_from_priors(report: ReconstructionReport) -> None:
+    if report.cam_pos_rms_m is not None and report.cam_pos_rms_m > 10.0 * report.cam_pos_rms_expected_m:
+        log.warning(
+            "the cameras are %.3g m RMS from their priors, more than 10 times the %.3g m expected: "
+            "pycolmap's alignment to the priors may have failed and the model may not be in the body frame",
+            report.cam_pos_rms_m, report.cam_pos_rms_expected_m,
+        )
+
+
 def reconstruct_images(
     images,
     intrinsics: Intrinsics,
@@ -752,76 +854,32 @@ def reconstruct_images(
     stage_seconds = {}
     pycolmap.set_random_seed(seed)
 
-    work_dir = Path(work_dir)
-    image_dir, database_path, mapper_dir = work_dir / "images", work_dir / "database.db", work_dir / "mapper"
-    for directory in (image_dir, mapper_dir):  # only what this function writes: a rerun starts clean
-        shutil.rmtree(directory, ignore_errors=True)
-    database_path.unlink(missing_ok=True)
-    mapper_dir.mkdir(parents=True)
+    workspace = _Workspace.fresh(work_dir)
     names = [image_name(i) for i in range(len(images))]
-    reference = write_images(images, names, image_dir, tone_curve)
+    reference = write_images(images, names, workspace.image_dir, tone_curve)
     options = _pycolmap_options(features, use_priors, num_threads, seed)
 
     tick = time.perf_counter()
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    reader.camera_params = f"{intrinsics.focal_px!r},{intrinsics.focal_px!r},{intrinsics.cx!r},{intrinsics.cy!r}"
-    # The images enter the database one by one in set order first: the extractor numbers images in the
-    # order its threads finish them, and the mapper's choices (initial pair, next image) follow the ids.
-    with pycolmap.Database.open(database_path):  # a new, empty database
-        pass
-    pycolmap.import_images(database_path, image_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader)
-    pycolmap.extract_features(
-        database_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-        reader_options=reader, extraction_options=options["extraction"], device=pycolmap.Device.cpu,
-    )
+    _extract_features(workspace, names, intrinsics, options["extraction"])
     stage_seconds["features"] = time.perf_counter() - tick
 
     prior_centres = simulate_navigation_positions(true_body_to_camera, camera_position_sigma_m, prior_seed) if use_priors else None
-    with pycolmap.Database.open(database_path) as database:
-        image_ids = {image.name: image.image_id for image in database.read_all_images()}
-        n_keypoints = {name: database.num_keypoints_for_image(image_id) for name, image_id in image_ids.items()}
-        if use_priors:
-            covariance = prior_covariance(camera_position_sigma_m, tie_point_sigma_px)
-            for image in database.read_all_images():
-                database.write_pose_prior(
-                    pycolmap.PosePrior(
-                        corr_data_id=image.data_id, position=prior_centres[image_index(image.name)],
-                        position_covariance=covariance, coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
-                    )
-                )
-    log.info("SIFT: %d to %d keypoints per image (median %d)", min(n_keypoints.values()), max(n_keypoints.values()), int(np.median(list(n_keypoints.values()))))
+    n_keypoints = _keypoints_and_priors(workspace.database_path, prior_centres, camera_position_sigma_m, tie_point_sigma_px)
 
     tick = time.perf_counter()
     pycolmap.match_exhaustive(
-        database_path, matching_options=options["matching"], verification_options=options["verification"], device=pycolmap.Device.cpu,
+        workspace.database_path, matching_options=options["matching"], verification_options=options["verification"], device=pycolmap.Device.cpu,
     )
     stage_seconds["matching"] = time.perf_counter() - tick
-    with pycolmap.Database.open(database_path) as database:
-        n_verified_pairs = database.num_verified_image_pairs()
-    log.info("%d verified image pairs", n_verified_pairs)
+    n_verified_pairs = _verified_pairs(workspace.database_path)
 
     tick = time.perf_counter()
-    models = pycolmap.incremental_mapping(database_path, image_dir, mapper_dir, options["mapping"])
+    models = pycolmap.incremental_mapping(workspace.database_path, workspace.image_dir, workspace.mapper_dir, options["mapping"])
     stage_seconds["mapping"] = time.perf_counter() - tick
-    sizes = {key: model.num_reg_images() for key, model in models.items()}
-    if max(sizes.values(), default=0) < MIN_REGISTERED_IMAGES:
-        from asteroid_photometry.core.failures import DataFailure
-
-        raise DataFailure(
-            f"pycolmap registered {max(sizes.values(), default=0)} of {len(images)} images in its largest model "
-            f"(at least {MIN_REGISTERED_IMAGES} needed; {n_verified_pairs} verified image pairs)"
-        )
-    model = models[max(sizes, key=sizes.get)]
-    log.info("mapper: %d model(s) with %s registered images; keeping the largest", len(models), sorted(sizes.values(), reverse=True))
+    model = _largest_model(models, len(images), n_verified_pairs)
 
     tick = time.perf_counter()
-    index_by_image_id = {image_id: image_index(model.image(image_id).name) for image_id in model.reg_image_ids()}
-    priors_by_image_id = {image_id: prior_centres[index] for image_id, index in index_by_image_id.items()} if use_priors else None
-    bundle_adjust(
-        model, priors_by_image_id, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px,
-        refine_intrinsics=intrinsics_mode == "refine", num_threads=MAPPING_THREADS, seed=seed,
-    )
+    _final_bundle_adjustment(model, prior_centres, camera_position_sigma_m, tie_point_sigma_px, intrinsics_mode, seed)
     stage_seconds["final_bundle_adjustment"] = time.perf_counter() - tick
 
     report = model_report(
@@ -834,14 +892,8 @@ def reconstruct_images(
             "median_keypoints": int(np.median(list(n_keypoints.values()))),
         },
     )
-    if use_priors and report.cam_pos_rms_m is not None and report.cam_pos_rms_m > 10.0 * report.cam_pos_rms_expected_m:
-        log.warning(
-            "the cameras are %.3g m RMS from their priors, more than 10 times the %.3g m expected: "
-            "pycolmap's alignment to the priors may have failed and the model may not be in the body frame",
-            report.cam_pos_rms_m, report.cam_pos_rms_expected_m,
-        )
+    if use_priors:
+        _warn_if_far_from_priors(report)
     log.info("reconstruction: %s", json.dumps(report.to_dict()))
     full_priors = prior_centres if use_priors else None
     return SparseReconstruction(model, report, full_priors)
-
-

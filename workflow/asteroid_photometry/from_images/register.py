@@ -125,12 +125,6 @@ _CANDIDATE_POINTS = 1500
 _AXIS_FLIPS = ((1.0, 1.0, 1.0), (1.0, -1.0, -1.0), (-1.0, 1.0, -1.0), (-1.0, -1.0, 1.0))
 
 
-# ---------------------------------------------------------------- transforms
-
-
-# ---------------------------------------------------------------- the surface
-
-
 # ---------------------------------------------------------------- the result
 
 
@@ -383,6 +377,461 @@ def _fit_stats(distances, inlier_distance) -> tuple[float, float]:
     rmse = float(np.sqrt(np.mean(distances[inliers] ** 2))) if inliers.any() else float("inf")
     return fitness, rmse
 
+# ---------------------------------------------------------------- the steps of the registration
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """What :func:`register_to_shape` was asked to do (its keyword arguments that steer the search and decide success)."""
+
+    estimate_scale: bool
+    global_search: bool
+    init_transform: np.ndarray | None
+    seed: int
+    n_ransac: int
+    ransac_max_iteration: int
+    success_rms_rel: float
+    success_fitness: float
+    success_ambiguity: float
+
+
+@dataclass(frozen=True)
+class _Input:
+    """The checked input: the mesh, the number of input points, and the finite ones (with their normals, or None)."""
+
+    vertices_m: np.ndarray
+    faces: np.ndarray
+    n_points: int
+    points: np.ndarray
+    normals: np.ndarray | None
+
+
+def _checked_input(points, normals, shape_vertices_m, shape_faces, settings: _Settings) -> _Input:
+    """The input as arrays, its rows with a NaN dropped; ValueError if malformed, DataFailure if fewer than 30 points are left."""
+    points = _as_points(points)
+    vertices_m, faces = _as_mesh(shape_vertices_m, shape_faces)
+    if normals is not None:
+        normals = _as_points(normals, "normals")
+        if len(normals) != len(points):
+            raise ValueError(f"normals has {len(normals)} rows but points has {len(points)}")
+    finite = np.all(np.isfinite(points), axis=1)
+    if normals is not None:
+        finite &= np.all(np.isfinite(normals), axis=1)
+    points_in = points[finite]
+    normals_in = None if normals is None else normals[finite]
+    if len(points_in) < 30:
+        raise DataFailure(f"need at least 30 finite points to register, got {len(points_in)}")
+    if not settings.global_search and settings.init_transform is None:
+        raise ValueError("global_search=False needs an init_transform")
+    return _Input(vertices_m, faces, len(points), points_in, normals_in)
+
+
+@dataclass(frozen=True)
+class _Target:
+    """The shape model as the target, in the body frame (metres).
+
+    ``surface`` queries the exact mesh; ``length_m``, ``voxel_m`` and
+    ``inlier_m`` are the body length, the voxel size and the inlier band.
+    ``points`` and ``normals``: dense uniform samples of the surface with
+    their facets' normals (the target of the final point-to-plane ICP);
+    ``fine``: those thinned to half a voxel (the target of the scaled ICP),
+    with centroid ``centre`` and RMS radius ``radius``.
+    """
+
+    vertices_m: np.ndarray
+    faces: np.ndarray
+    surface: SurfaceQuery
+    length_m: float
+    voxel_m: float
+    inlier_m: float
+    points: np.ndarray
+    normals: np.ndarray
+    fine: object
+    centre: np.ndarray
+    radius: float
+
+
+def _sample_target(vertices_m, faces, voxel_size, inlier_distance_rel, rng) -> _Target:
+    """The target: dense uniform samples of the surface with facet normals (drawn from ``rng``)."""
+    length_m = body_length_m(vertices_m, faces)
+    voxel_m = float(voxel_size) if voxel_size is not None else VOXEL_SIZE_REL * length_m
+    inlier_m = inlier_distance_rel * length_m
+    surface = SurfaceQuery(vertices_m, faces)
+    _, facet_normals, areas = facet_geometry(vertices_m, faces)
+    n_dense = int(np.clip(areas.sum() / (0.25 * voxel_m) ** 2, 20_000, 200_000))
+    target_points, target_facets = sample_surface(vertices_m, faces, n_dense, rng)
+    target_normals = facet_normals[target_facets]
+    target_fine = _point_cloud(target_points, target_normals).voxel_down_sample(0.5 * voxel_m)
+    target_centre, target_radius = _centre_and_rms_radius(np.asarray(target_fine.points))
+    return _Target(
+        vertices_m, faces, surface, length_m, voxel_m, inlier_m, target_points, target_normals, target_fine, target_centre, target_radius
+    )
+
+
+@dataclass(frozen=True)
+class _Source:
+    """The input cloud made ready to register.
+
+    The "rough" frame: the finite input points less their median
+    ``rough_centre``, times ``rough_scale`` (the body's median radius over
+    theirs, or 1 when the scale is known). ``fine``: the cloud in that frame
+    thinned to half a voxel, stray points removed, with normals (given, or
+    estimated away from the centroid); ``centre`` and ``radius`` its
+    centroid and RMS radius.
+    """
+
+    rough_centre: np.ndarray
+    rough_scale: float
+    fine: object
+    centre: np.ndarray
+    radius: float
+
+
+def _prepare_source(cloud: _Input, target: _Target, estimate_scale, outlier_neighbours, outlier_distance_ratio) -> _Source:
+    """The source roughly brought to the body's size (median radius), then thinned and cleaned of outliers."""
+    import open3d as o3d
+
+    points_in, normals_in, voxel_m = cloud.points, cloud.normals, target.voxel_m
+    rough_centre = np.median(points_in, axis=0)
+    rough_radius = float(np.median(np.linalg.norm(points_in - rough_centre, axis=1)))
+    target_median_radius = float(np.median(np.linalg.norm(target.points - target.centre, axis=1)))
+    if not rough_radius > 0:
+        raise DataFailure("the points have no extent (all at one place)")
+    if estimate_scale:
+        rough_scale = target_median_radius / rough_radius
+    else:
+        rough_scale = 1.0
+    source_rough = _point_cloud((points_in - rough_centre) * rough_scale, normals_in)
+    source_fine = source_rough.voxel_down_sample(0.5 * voxel_m)
+    source_fine = source_fine.select_by_index(
+        np.flatnonzero(_dense_points(np.asarray(source_fine.points), outlier_neighbours, outlier_distance_ratio))
+    )
+    if len(source_fine.points) < 30:
+        raise DataFailure(f"fewer than 30 points left after thinning and outlier removal ({len(source_fine.points)})")
+    source_centre, source_radius = _centre_and_rms_radius(np.asarray(source_fine.points))
+    if normals_in is None:
+        # Orient estimated normals away from the centroid (right for most of a
+        # star-shaped body such as Itokawa).
+        source_fine.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel_m, max_nn=30))
+        source_fine.orient_normals_towards_camera_location(source_centre)
+        source_fine.normals = o3d.utility.Vector3dVector(-np.asarray(source_fine.normals))
+    return _Source(rough_centre, rough_scale, source_fine, source_centre, source_radius)
+
+
+@dataclass(frozen=True)
+class _Frames:
+    """The frames of the search and the similarities between them.
+
+    Normalised frames: target ``y' = (y - c_t) / r_t`` (``to_target_norm``
+    from the body frame, ``from_target_norm`` back); source ``x' = f
+    (x_rough - c_s) / r_s`` for a size factor ``f`` (:meth:`rough_to_norm`).
+    ``rough_to_input`` and ``input_to_rough`` lead between the input frame
+    and the source's rough frame. ``expected_scale``: the input-to-body
+    scale the size estimate gives (or the fixed one).
+    """
+
+    size_ratio: float
+    expected_scale: float
+    target_radius: float
+    source_centre: np.ndarray
+    to_target_norm: np.ndarray
+    from_target_norm: np.ndarray
+    rough_to_input: np.ndarray
+    input_to_rough: np.ndarray
+
+    def rough_to_norm(self, factor) -> np.ndarray:
+        """The source's rough frame to its normalised frame, re-sized by ``factor``."""
+        scale = factor * self.size_ratio / self.target_radius
+        return similarity_transform(scale, np.eye(3), -scale * self.source_centre)
+
+
+def _frames(target: _Target, source: _Source, settings: _Settings) -> _Frames:
+    size_ratio = target.radius / source.radius if settings.estimate_scale else 1.0
+    if settings.estimate_scale or settings.init_transform is None:
+        expected_scale = source.rough_scale * size_ratio
+    else:
+        expected_scale = decompose_similarity(settings.init_transform)[0]
+    to_target_norm = similarity_transform(1.0 / target.radius, np.eye(3), -target.centre / target.radius)
+    from_target_norm = np.linalg.inv(to_target_norm)
+    rough_to_input = similarity_transform(1.0 / source.rough_scale, np.eye(3), source.rough_centre)
+    input_to_rough = np.linalg.inv(rough_to_input)
+    return _Frames(
+        size_ratio, expected_scale, target.radius, source.centre, to_target_norm, from_target_norm, rough_to_input, input_to_rough
+    )
+
+
+@dataclass(frozen=True)
+class _NormalisedTarget:
+    """The target in its normalised frame, where the global search runs.
+
+    ``voxel``: the voxel size in that frame; ``coarse``: the target thinned
+    to it, with FPFH ``features`` and principal ``axes``; ``flips``: the
+    rotations that map those axes onto themselves; ``surface``: the exact
+    mesh in that frame.
+    """
+
+    voxel: float
+    coarse: object
+    features: object
+    axes: np.ndarray
+    flips: list
+    surface: SurfaceQuery
+
+
+def _normalised_target(target: _Target) -> _NormalisedTarget:
+    voxel = target.voxel_m / target.radius
+    target_norm = _point_cloud(
+        (np.asarray(target.fine.points) - target.centre) / target.radius, np.asarray(target.fine.normals)
+    )
+    target_coarse = target_norm.voxel_down_sample(voxel)
+    target_features = _features(target_coarse, voxel)
+    target_axes = _axes_of(np.asarray(target_coarse.points))
+    flips = [target_axes @ np.diag(signs) @ target_axes.T for signs in _AXIS_FLIPS]
+    norm_vertices = (target.vertices_m - target.centre) / target.radius
+    norm_surface = SurfaceQuery(norm_vertices, target.faces)
+    return _NormalisedTarget(voxel, target_coarse, target_features, target_axes, flips, norm_surface)
+
+
+# ---------------------------------------------------------------- stage 1: candidates
+
+
+def _ransac_starts(source_coarse, source_features, norm_target: _NormalisedTarget, settings: _Settings) -> list:
+    """Feature matching: a RANSAC pose per run (seeded), each also turned by the principal-axis flips."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    voxel = norm_target.voxel
+    starts = []
+    for attempt in range(settings.n_ransac):
+        o3d.utility.random.seed(int(settings.seed) * 1000 + attempt)
+        ransac = reg.registration_ransac_based_on_feature_matching(
+            source_coarse,
+            norm_target.coarse,
+            source_features,
+            norm_target.features,
+            False,
+            1.5 * voxel,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
+            [
+                reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel),
+            ],
+            reg.RANSACConvergenceCriteria(settings.ransac_max_iteration, 0.999),
+        )
+        starts += [similarity_transform(1.0, flip, np.zeros(3)) @ ransac.transformation for flip in norm_target.flips]
+    return starts
+
+
+def _principal_axis_starts(source_coarse, norm_target: _NormalisedTarget) -> list:
+    """The source's principal axes onto the target's, and that turned by each flip."""
+    target_axes = norm_target.axes
+    source_coarse_points = np.asarray(source_coarse.points)
+    source_axes = _axes_of(source_coarse_points)
+    source_mean = source_coarse_points.mean(axis=0)
+    pca = similarity_transform(1.0, target_axes @ source_axes.T, -target_axes @ source_axes.T @ source_mean)
+    return [similarity_transform(1.0, flip, np.zeros(3)) @ pca for flip in norm_target.flips]
+
+
+def _starts(source_coarse, rough_to_norm, norm_target: _NormalisedTarget, frames: _Frames, settings: _Settings) -> list:
+    """The coarse alignments (normalised source to normalised target) at one size: RANSAC, principal axes, the given guess."""
+    starts = []
+    if settings.global_search:
+        source_features = _features(source_coarse, norm_target.voxel)
+        starts += _ransac_starts(source_coarse, source_features, norm_target, settings)
+        starts += _principal_axis_starts(source_coarse, norm_target)
+    if settings.init_transform is not None:
+        # input -> body  ==>  normalised source -> normalised target.
+        norm_to_input = frames.rough_to_input @ np.linalg.inv(rough_to_norm)
+        starts.append(frames.to_target_norm @ np.asarray(settings.init_transform, dtype=np.float64) @ norm_to_input)
+    return starts
+
+
+def _polished_candidate(
+    start_transform, subset_norm, rough_to_norm, norm_target: _NormalisedTarget, frames: _Frames, target: _Target, settings: _Settings
+) -> _Candidate:
+    """A start polished by a short ICP on the coarse target, and scored on ``subset_norm`` against the exact surface."""
+    voxel = norm_target.voxel
+    transform = _icp(
+        _point_cloud(subset_norm),
+        norm_target.coarse,
+        start_transform,
+        [3.0 * voxel, 1.5 * voxel],
+        with_scaling=settings.estimate_scale,
+        max_iteration=20,
+    )
+    distances_m = norm_target.surface.distance(transform_points(transform, subset_norm)) * frames.target_radius
+    input_to_body = frames.from_target_norm @ transform @ rough_to_norm @ frames.input_to_rough
+    return _Candidate(input_to_body, distances_m, target.inlier_m, frames.expected_scale)
+
+
+def _global_search(
+    source: _Source, target: _Target, norm_target: _NormalisedTarget, frames: _Frames, settings: _Settings, rng
+) -> tuple[list, _Candidate]:
+    """Stage 1: the candidates over the size hypotheses (until one passes), and the best of them.
+
+    Every candidate is polished and scored on the same random subset of the
+    source, so that scores compare across size hypotheses.
+    """
+    subset_rough = np.asarray(source.fine.points)[
+        np.sort(rng.permutation(len(source.fine.points))[:_CANDIDATE_POINTS])
+    ]
+    factors = _RESIZE_FACTORS if (settings.estimate_scale and settings.global_search) else (1.0,)
+    candidates = []
+    for factor in factors:
+        rough_to_norm = frames.rough_to_norm(factor)
+        source_norm = _point_cloud(
+            transform_points(rough_to_norm, np.asarray(source.fine.points)), np.asarray(source.fine.normals)
+        )
+        source_coarse = source_norm.voxel_down_sample(norm_target.voxel)
+        subset_norm = transform_points(rough_to_norm, subset_rough)
+        for start_transform in _starts(source_coarse, rough_to_norm, norm_target, frames, settings):
+            candidates.append(_polished_candidate(start_transform, subset_norm, rough_to_norm, norm_target, frames, target, settings))
+        best = max(candidates, key=lambda candidate: candidate.score)
+        logger.debug("size factor %.2f: best score %.3f fitness %.3f", factor, best.score, best.fitness)
+        if (
+            best.plausible
+            and best.fitness > settings.success_fitness
+            and best.inlier_rmse_m < settings.success_rms_rel * target.length_m
+        ):
+            break
+    return candidates, best
+
+
+# ---------------------------------------------------------------- stage 2: ICP in the body frame, and the choice
+
+
+@dataclass(frozen=True)
+class _BodyFrameIcp:
+    """The final ICP in the body frame, and the scores of its poses against the exact surface.
+
+    ``dense``: the target's dense samples with their normals (the default
+    target of the point-to-plane step).
+    """
+
+    target: _Target
+    dense: object
+    estimate_scale: bool
+    expected_scale: float
+
+    def refine(self, input_to_body, source, target_for_planes=None, max_iteration=30) -> np.ndarray:
+        """Scaled point-to-point ICP against the thinned target, then rigid point-to-plane ICP."""
+        voxel_m = self.target.voxel_m
+        transform = _icp(
+            source,
+            self.target.fine,
+            input_to_body,
+            [2.0 * voxel_m, 1.0 * voxel_m],
+            with_scaling=self.estimate_scale,
+            max_iteration=max_iteration,
+        )
+        return _icp(
+            source,
+            self.dense if target_for_planes is None else target_for_planes,
+            transform,
+            [1.0 * voxel_m, 0.5 * voxel_m],
+            with_scaling=False,
+            point_to_plane=True,
+            max_iteration=max_iteration,
+        )
+
+    def scored(self, input_to_body, points) -> _Candidate:
+        distances_m = self.target.surface.distance(transform_points(input_to_body, points))
+        return _Candidate(input_to_body, distances_m, self.target.inlier_m, self.expected_scale)
+
+
+def _choose_against_rivals(chosen: _Candidate, best, candidates, source_body, icp: _BodyFrameIcp, rng) -> tuple[_Candidate, float]:
+    """The chosen pose (``chosen``, or a rival that fits better) and its ambiguity (NaN when there is no rival).
+
+    The best other poses of the global search are refined the same way as
+    the chosen one (their scores from the short ICP on a coarse target are
+    not converged enough to compare with the chosen pose's), on a subset of
+    the source to save time. A rival that ICP brings into the chosen pose is
+    no rival; one that ends up fitting better is chosen instead.
+    """
+    rivals = _rivals(candidates, best, _RIVALS_REFINED)
+    if not rivals:
+        return chosen, float("nan")
+    ambiguity = 0.0
+    source_body_points = np.asarray(source_body.points)
+    subset_points = source_body_points[np.sort(rng.permutation(len(source_body_points))[:_RIVAL_POINTS])]
+    subset = _point_cloud(subset_points)
+    chosen_on_subset = icp.scored(chosen.input_to_body, subset_points)
+    for rival in rivals:
+        rival = icp.scored(icp.refine(rival.input_to_body, subset, icp.target.fine, 20), subset_points)
+        same_pose = _rotation_between_deg(rival.input_to_body, chosen.input_to_body) <= _DISTINCT_POSE_DEG
+        if same_pose or not rival.plausible:
+            continue
+        if rival.score > chosen_on_subset.score:
+            ambiguity = _ambiguity(rival, chosen_on_subset, icp.target.inlier_m)
+            chosen = icp.scored(icp.refine(rival.input_to_body, source_body), source_body_points)
+        else:
+            ambiguity = _ambiguity(chosen_on_subset, rival, icp.target.inlier_m)
+        break
+    return chosen, ambiguity
+
+
+def _registration_result(
+    chosen: _Candidate,
+    ambiguity: float,
+    cloud: _Input,
+    n_points_registered: int,
+    n_candidates: int,
+    target: _Target,
+    settings: _Settings,
+    seconds_global: float,
+    seconds_icp: float,
+) -> RegistrationResult:
+    """The chosen pose scored against the exact surface, decided (``success``) and logged."""
+    length_m = target.length_m
+    transform = chosen.input_to_body
+    fitness, inlier_rmse_m = chosen.fitness, chosen.inlier_rmse_m
+    inlier_fraction_all = float(np.mean(target.surface.distance(transform_points(transform, cloud.points)) <= target.inlier_m))
+    rms_distance_rel = inlier_rmse_m / length_m
+    scale, rotation, translation = decompose_similarity(transform)
+    unambiguous = not ambiguity >= settings.success_ambiguity  # NaN (no other pose tried) passes
+    success = bool(
+        rms_distance_rel < settings.success_rms_rel and fitness > settings.success_fitness and unambiguous and chosen.plausible
+    )
+    logger.info(
+        "registration %s: scale %.6g, fitness %.3f, inlier RMS %.3g m (%.3g %% of %.1f m), ambiguity %.3f, "
+        "%d candidates, %.2f s global + %.2f s ICP",
+        "succeeded" if success else "FAILED",
+        scale,
+        fitness,
+        inlier_rmse_m,
+        100 * rms_distance_rel,
+        length_m,
+        ambiguity,
+        n_candidates,
+        seconds_global,
+        seconds_icp,
+    )
+    return RegistrationResult(
+        transform=transform,
+        scale=scale,
+        rotation=rotation,
+        translation_m=translation,
+        success=success,
+        fitness=fitness,
+        inlier_rmse_m=inlier_rmse_m,
+        rms_distance_rel=rms_distance_rel,
+        inlier_fraction_all=inlier_fraction_all,
+        body_length_m=length_m,
+        inlier_distance_m=target.inlier_m,
+        voxel_size_m=target.voxel_m,
+        seconds_global=seconds_global,
+        seconds_icp=seconds_icp,
+        n_points_input=cloud.n_points,
+        n_points_registered=n_points_registered,
+        n_candidates=n_candidates,
+        ambiguity=ambiguity,
+        success_rms_rel=settings.success_rms_rel,
+        success_fitness=settings.success_fitness,
+        success_ambiguity=settings.success_ambiguity,
+        plausible_scale=bool(chosen.plausible),
+    )
+
 
 # ---------------------------------------------------------------- registration
 
@@ -446,253 +895,31 @@ def register_to_shape(
     # in the order they finish, so with more the registration differs in the last bits from run to run
     # (and the rules that register have one thread).
     o3d.utility.set_max_threads(1)
-    reg = o3d.pipelines.registration
     start = time.perf_counter()
-    points = _as_points(points)
-    vertices_m, faces = _as_mesh(shape_vertices_m, shape_faces)
-    if normals is not None:
-        normals = _as_points(normals, "normals")
-        if len(normals) != len(points):
-            raise ValueError(f"normals has {len(normals)} rows but points has {len(points)}")
-    finite = np.all(np.isfinite(points), axis=1)
-    if normals is not None:
-        finite &= np.all(np.isfinite(normals), axis=1)
-    points_in = points[finite]
-    normals_in = None if normals is None else normals[finite]
-    if len(points_in) < 30:
-        raise DataFailure(f"need at least 30 finite points to register, got {len(points_in)}")
-    if not global_search and init_transform is None:
-        raise ValueError("global_search=False needs an init_transform")
-
+    settings = _Settings(
+        estimate_scale, global_search, init_transform, seed, n_ransac, ransac_max_iteration,
+        success_rms_rel, success_fitness, success_ambiguity,
+    )
+    cloud = _checked_input(points, normals, shape_vertices_m, shape_faces, settings)
     rng = np.random.default_rng(seed)
-    length_m = body_length_m(vertices_m, faces)
-    voxel_m = float(voxel_size) if voxel_size is not None else VOXEL_SIZE_REL * length_m
-    inlier_m = inlier_distance_rel * length_m
-    surface = SurfaceQuery(vertices_m, faces)
-
-    # --- the target: dense uniform samples of the surface with facet normals.
-    _, facet_normals, areas = facet_geometry(vertices_m, faces)
-    n_dense = int(np.clip(areas.sum() / (0.25 * voxel_m) ** 2, 20_000, 200_000))
-    target_points, target_facets = sample_surface(vertices_m, faces, n_dense, rng)
-    target_normals = facet_normals[target_facets]
-    target_fine = _point_cloud(target_points, target_normals).voxel_down_sample(0.5 * voxel_m)
-    target_centre, target_radius = _centre_and_rms_radius(np.asarray(target_fine.points))
-
-    # --- the source: roughly brought to the body's size (median radius), then
-    # thinned, cleaned of outliers, and centred and sized like the target.
-    rough_centre = np.median(points_in, axis=0)
-    rough_radius = float(np.median(np.linalg.norm(points_in - rough_centre, axis=1)))
-    target_median_radius = float(np.median(np.linalg.norm(target_points - target_centre, axis=1)))
-    if not rough_radius > 0:
-        raise DataFailure("the points have no extent (all at one place)")
-    if estimate_scale:
-        rough_scale = target_median_radius / rough_radius
-    else:
-        rough_scale = 1.0
-    source_rough = _point_cloud((points_in - rough_centre) * rough_scale, normals_in)
-    source_fine = source_rough.voxel_down_sample(0.5 * voxel_m)
-    source_fine = source_fine.select_by_index(
-        np.flatnonzero(_dense_points(np.asarray(source_fine.points), outlier_neighbours, outlier_distance_ratio))
-    )
-    if len(source_fine.points) < 30:
-        raise DataFailure(f"fewer than 30 points left after thinning and outlier removal ({len(source_fine.points)})")
-    source_centre, source_radius = _centre_and_rms_radius(np.asarray(source_fine.points))
-    if normals_in is None:
-        # Orient estimated normals away from the centroid (right for most of a
-        # star-shaped body such as Itokawa).
-        source_fine.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel_m, max_nn=30))
-        source_fine.orient_normals_towards_camera_location(source_centre)
-        source_fine.normals = o3d.utility.Vector3dVector(-np.asarray(source_fine.normals))
-
-    # Normalised frames: target y' = (y - c_t) / r_t; source x' = f (x_rough - c_s) / r_s.
-    size_ratio = target_radius / source_radius if estimate_scale else 1.0
-    # The input-to-body scale the size estimate gives (or the fixed one).
-    if estimate_scale or init_transform is None:
-        expected_scale = rough_scale * size_ratio
-    else:
-        expected_scale = decompose_similarity(init_transform)[0]
-    to_target_norm = similarity_transform(1.0 / target_radius, np.eye(3), -target_centre / target_radius)
-    from_target_norm = np.linalg.inv(to_target_norm)
-    rough_to_input = similarity_transform(1.0 / rough_scale, np.eye(3), rough_centre)
-    input_to_rough = np.linalg.inv(rough_to_input)
-
-    def source_norm_from_rough(factor):
-        scale = factor * size_ratio / target_radius
-        return similarity_transform(scale, np.eye(3), -scale * source_centre)
-
-    voxel = voxel_m / target_radius
-    inlier = inlier_m / target_radius
-    target_norm = _point_cloud(
-        (np.asarray(target_fine.points) - target_centre) / target_radius, np.asarray(target_fine.normals)
-    )
-    target_coarse = target_norm.voxel_down_sample(voxel)
-    target_features = _features(target_coarse, voxel)
-    target_axes = _axes_of(np.asarray(target_coarse.points))
-    flips = [target_axes @ np.diag(signs) @ target_axes.T for signs in _AXIS_FLIPS]
-    norm_vertices = (vertices_m - target_centre) / target_radius
-    norm_surface = SurfaceQuery(norm_vertices, faces)
+    target = _sample_target(cloud.vertices_m, cloud.faces, voxel_size, inlier_distance_rel, rng)
+    source = _prepare_source(cloud, target, estimate_scale, outlier_neighbours, outlier_distance_ratio)
+    frames = _frames(target, source, settings)
+    norm_target = _normalised_target(target)
 
     # --- stage 1: global search over size hypotheses, RANSAC and PCA candidates.
-    # Every candidate is polished and scored on the same random subset of the
-    # source, so that scores compare across size hypotheses.
-    subset_rough = np.asarray(source_fine.points)[
-        np.sort(rng.permutation(len(source_fine.points))[:_CANDIDATE_POINTS])
-    ]
-    factors = _RESIZE_FACTORS if (estimate_scale and global_search) else (1.0,)
-    candidates = []
-    for factor in factors:
-        rough_to_norm = source_norm_from_rough(factor)
-        source_norm = _point_cloud(
-            transform_points(rough_to_norm, np.asarray(source_fine.points)), np.asarray(source_fine.normals)
-        )
-        source_coarse = source_norm.voxel_down_sample(voxel)
-        subset_norm = transform_points(rough_to_norm, subset_rough)
-        starts = []
-        if global_search:
-            source_features = _features(source_coarse, voxel)
-            for attempt in range(n_ransac):
-                o3d.utility.random.seed(int(seed) * 1000 + attempt)
-                ransac = reg.registration_ransac_based_on_feature_matching(
-                    source_coarse,
-                    target_coarse,
-                    source_features,
-                    target_features,
-                    False,
-                    1.5 * voxel,
-                    reg.TransformationEstimationPointToPoint(False),
-                    3,
-                    [
-                        reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-                        reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel),
-                    ],
-                    reg.RANSACConvergenceCriteria(ransac_max_iteration, 0.999),
-                )
-                starts += [similarity_transform(1.0, flip, np.zeros(3)) @ ransac.transformation for flip in flips]
-            source_coarse_points = np.asarray(source_coarse.points)
-            source_axes = _axes_of(source_coarse_points)
-            source_mean = source_coarse_points.mean(axis=0)
-            pca = similarity_transform(1.0, target_axes @ source_axes.T, -target_axes @ source_axes.T @ source_mean)
-            starts += [similarity_transform(1.0, flip, np.zeros(3)) @ pca for flip in flips]
-        if init_transform is not None:
-            # input -> body  ==>  normalised source -> normalised target.
-            norm_to_input = rough_to_input @ np.linalg.inv(rough_to_norm)
-            starts.append(to_target_norm @ np.asarray(init_transform, dtype=np.float64) @ norm_to_input)
-        for start_transform in starts:
-            transform = _icp(
-                _point_cloud(subset_norm),
-                target_coarse,
-                start_transform,
-                [3.0 * voxel, 1.5 * voxel],
-                with_scaling=estimate_scale,
-                max_iteration=20,
-            )
-            distances_m = norm_surface.distance(transform_points(transform, subset_norm)) * target_radius
-            input_to_body = from_target_norm @ transform @ rough_to_norm @ input_to_rough
-            candidates.append(_Candidate(input_to_body, distances_m, inlier_m, expected_scale))
-        best = max(candidates, key=lambda candidate: candidate.score)
-        logger.debug("size factor %.2f: best score %.3f fitness %.3f", factor, best.score, best.fitness)
-        if best.plausible and best.fitness > success_fitness and best.inlier_rmse_m < success_rms_rel * length_m:
-            break
+    candidates, best = _global_search(source, target, norm_target, frames, settings, rng)
     seconds_global = time.perf_counter() - start
 
     # --- stage 2: ICP in the body frame: scaled point-to-point, then point-to-plane.
     start = time.perf_counter()
-    source_body = _point_cloud(transform_points(rough_to_input, np.asarray(source_fine.points)))
-    target_dense = _point_cloud(target_points, target_normals)
-
-    def refine(input_to_body, source, target_for_planes=target_dense, max_iteration=30) -> np.ndarray:
-        transform = _icp(
-            source,
-            target_fine,
-            input_to_body,
-            [2.0 * voxel_m, 1.0 * voxel_m],
-            with_scaling=estimate_scale,
-            max_iteration=max_iteration,
-        )
-        return _icp(
-            source,
-            target_for_planes,
-            transform,
-            [1.0 * voxel_m, 0.5 * voxel_m],
-            with_scaling=False,
-            point_to_plane=True,
-            max_iteration=max_iteration,
-        )
-
-    def scored(input_to_body, points) -> _Candidate:
-        distances_m = surface.distance(transform_points(input_to_body, points))
-        return _Candidate(input_to_body, distances_m, inlier_m, expected_scale)
-
-    source_body_points = np.asarray(source_body.points)
-    chosen = scored(refine(best.input_to_body, source_body), source_body_points)
-    # Ambiguity: the best other poses of the global search, refined the same
-    # way (their scores from the short ICP on a coarse target are not
-    # converged enough to compare with the chosen pose's), on a subset of the
-    # source to save time. A rival that ICP brings into the chosen pose is no
-    # rival; one that ends up fitting better is chosen instead.
-    rivals = _rivals(candidates, best, _RIVALS_REFINED)
-    ambiguity = 0.0 if rivals else float("nan")
-    if rivals:
-        subset_points = source_body_points[np.sort(rng.permutation(len(source_body_points))[:_RIVAL_POINTS])]
-        subset = _point_cloud(subset_points)
-        chosen_on_subset = scored(chosen.input_to_body, subset_points)
-    for rival in rivals:
-        rival = scored(refine(rival.input_to_body, subset, target_fine, 20), subset_points)
-        same_pose = _rotation_between_deg(rival.input_to_body, chosen.input_to_body) <= _DISTINCT_POSE_DEG
-        if same_pose or not rival.plausible:
-            continue
-        if rival.score > chosen_on_subset.score:
-            ambiguity = _ambiguity(rival, chosen_on_subset, inlier_m)
-            chosen = scored(refine(rival.input_to_body, source_body), source_body_points)
-        else:
-            ambiguity = _ambiguity(chosen_on_subset, rival, inlier_m)
-        break
+    source_body = _point_cloud(transform_points(frames.rough_to_input, np.asarray(source.fine.points)))
+    icp = _BodyFrameIcp(target, _point_cloud(target.points, target.normals), estimate_scale, frames.expected_scale)
+    chosen = icp.scored(icp.refine(best.input_to_body, source_body), np.asarray(source_body.points))
+    # Ambiguity: the best other poses of the global search, refined the same way.
+    chosen, ambiguity = _choose_against_rivals(chosen, best, candidates, source_body, icp, rng)
     seconds_icp = time.perf_counter() - start
 
-    transform = chosen.input_to_body
-    fitness, inlier_rmse_m = chosen.fitness, chosen.inlier_rmse_m
-    inlier_fraction_all = float(np.mean(surface.distance(transform_points(transform, points_in)) <= inlier_m))
-    rms_distance_rel = inlier_rmse_m / length_m
-    scale, rotation, translation = decompose_similarity(transform)
-    unambiguous = not ambiguity >= success_ambiguity  # NaN (no other pose tried) passes
-    success = bool(
-        rms_distance_rel < success_rms_rel and fitness > success_fitness and unambiguous and chosen.plausible
-    )
-    logger.info(
-        "registration %s: scale %.6g, fitness %.3f, inlier RMS %.3g m (%.3g %% of %.1f m), ambiguity %.3f, "
-        "%d candidates, %.2f s global + %.2f s ICP",
-        "succeeded" if success else "FAILED",
-        scale,
-        fitness,
-        inlier_rmse_m,
-        100 * rms_distance_rel,
-        length_m,
-        ambiguity,
-        len(candidates),
-        seconds_global,
-        seconds_icp,
-    )
-    return RegistrationResult(
-        transform=transform,
-        scale=scale,
-        rotation=rotation,
-        translation_m=translation,
-        success=success,
-        fitness=fitness,
-        inlier_rmse_m=inlier_rmse_m,
-        rms_distance_rel=rms_distance_rel,
-        inlier_fraction_all=inlier_fraction_all,
-        body_length_m=length_m,
-        inlier_distance_m=inlier_m,
-        voxel_size_m=voxel_m,
-        seconds_global=seconds_global,
-        seconds_icp=seconds_icp,
-        n_points_input=len(points),
-        n_points_registered=len(source_body.points),
-        n_candidates=len(candidates),
-        ambiguity=ambiguity,
-        success_rms_rel=success_rms_rel,
-        success_fitness=success_fitness,
-        success_ambiguity=success_ambiguity,
-        plausible_scale=bool(chosen.plausible),
+    return _registration_result(
+        chosen, ambiguity, cloud, len(source_body.points), len(candidates), target, settings, seconds_global, seconds_icp
     )
