@@ -7,6 +7,9 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
+report: "workflow/report/landing.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/shape.smk"
 include: "workflow/rules/render.smk"
@@ -15,6 +18,7 @@ include: "workflow/rules/fit.smk"
 include: "workflow/rules/tabulate.smk"
 include: "workflow/rules/reconstruct.smk"
 include: "workflow/rules/models.smk"
+include: "workflow/rules/summary.smk"
 
 
 # Rules of a few seconds that only prepare the inputs (the shape model, its
@@ -37,6 +41,7 @@ localrules:
     tabulate_model_mismatch,
     tabulate_table2,
     plot_table2,
+    summary,
 
 
 # The optional outputs, each only when its part of the experiment is configured.
@@ -54,6 +59,7 @@ rule all:
         rules.tabulate_table1.output,
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
+        rules.summary.output,
         expand("results/tables/{sweep}.csv", sweep=SWEEPS),
         OPTIONAL_TARGETS,
         expand("results/plots/error_map_{map_name}.png", map_name=[m["name"] for m in config["surface_maps"]]),
