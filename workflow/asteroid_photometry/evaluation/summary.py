@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import subprocess
 from pathlib import Path
 from typing import Mapping
 
@@ -82,6 +83,18 @@ def tables_in(directory) -> dict[str, Path]:
     """The tables of :data:`TABLES` that exist under ``directory`` (results/tables/)."""
     directory = Path(directory)
     return {name: directory / file for name, file in TABLES.items() if (directory / file).is_file()}
+
+
+def git_commit(directory) -> str:
+    """The commit checked out at ``directory``, or "unknown" when it is not a git checkout (or git is missing)."""
+    try:
+        result = subprocess.run(
+            ["git", "-C", str(directory), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=30, check=False
+        )
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    commit = result.stdout.strip()
+    return commit if result.returncode == 0 and commit else "unknown"
 
 
 def sha256_of(path) -> str:
