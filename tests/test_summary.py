@@ -1,6 +1,7 @@
 """results/summary.md: the headline numbers of the result tables, and the README's quotes of them."""
 
 import re
+import subprocess
 from pathlib import Path
 
 import pandas as pd
@@ -114,9 +115,17 @@ def test_a_missing_table1_is_a_clear_error(tables):
     assert not (tables / "summary.md").exists()
 
 
-def test_commit_is_unknown_outside_a_git_checkout(tmp_path):
+def test_commit_is_unknown_outside_a_git_checkout_and_says_when_files_changed(tmp_path):
     assert git_commit(tmp_path) == "unknown"
-    assert re.fullmatch(r"[0-9a-f]{40}|unknown", git_commit(REPO))
+    git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    (tmp_path / "a.txt").write_text("a")
+    subprocess.run([*git, "add", "a.txt"], check=True)
+    subprocess.run([*git, "commit", "-qm", "a"], check=True)
+    commit = git_commit(tmp_path)
+    assert re.fullmatch(r"[0-9a-f]{40}", commit)
+    (tmp_path / "a.txt").write_text("b")
+    assert git_commit(tmp_path) == commit + " (with uncommitted changes)"
 
 
 def _readme_outputs_table() -> list[list[str]]:

@@ -86,15 +86,23 @@ def tables_in(directory) -> dict[str, Path]:
 
 
 def git_commit(directory) -> str:
-    """The commit checked out at ``directory``, or "unknown" when it is not a git checkout (or git is missing)."""
+    """The commit checked out at ``directory``, "unknown" when it is not a git checkout (or git is missing).
+
+    Tracked files changed since that commit add " (with uncommitted changes)": the numbers then came from code
+    the commit alone does not hold.
+    """
+    def git(*args):
+        return subprocess.run(["git", "-C", str(directory), *args], capture_output=True, text=True, timeout=30, check=False)
+
     try:
-        result = subprocess.run(
-            ["git", "-C", str(directory), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=30, check=False
-        )
+        head = git("rev-parse", "HEAD")
+        commit = head.stdout.strip()
+        if head.returncode != 0 or not commit:
+            return "unknown"
+        status = git("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
-    commit = result.stdout.strip()
-    return commit if result.returncode == 0 and commit else "unknown"
+    return commit + (" (with uncommitted changes)" if status.returncode == 0 and status.stdout.strip() else "")
 
 
 def sha256_of(path) -> str:
