@@ -8,9 +8,9 @@ config. One line per table, the "headline", is gathered at the top; the
 README quotes those lines, and a test checks that every number it quotes is
 in the committed copy (``docs/results/summary.md``).
 
-Numbers are written with two significant digits (:func:`number`), so that a
-rerun of the same config writes the same page, and a headline changes only
-when a result does.
+Numbers are written with two significant digits (:func:`number`): a headline
+changes when a result does, not with its last digits. Only the runtime section
+changes from run to run (it is wall-clock time).
 """
 
 from __future__ import annotations
