@@ -309,16 +309,19 @@ def _model_mismatch(table: pd.DataFrame) -> tuple[str, list[str]]:
     sweep = table[table.experiment == "phase_sweep"]
     headline = ""
     if not sweep.empty:
-        phase = "phase_mean_deg" if "phase_mean_deg" in sweep else "light_angle_deg"
-        sweep = sweep.sort_values(phase)
-        rows = [[number(row[phase]), number(row.get("k_images")), number(row.light_err_deg)] for _, row in sweep.iterrows()]
+        # The configured phase angle is the light's angle from the camera (light_angle_deg).
+        sweep = sweep.sort_values("light_angle_deg")
+        rows = [
+            [number(row.light_angle_deg), number(row.get("phase_mean_deg")), number(row.get("k_images")), number(row.light_err_deg)]
+            for _, row in sweep.iterrows()
+        ]
         lines += [
             "Hapke surface fitted with the paper's Minnaert estimator, over the phase sweep:", "",
-            *_markdown_table(["phase (deg)", "Minnaert k (median)", "light error (deg)"], rows),
+            *_markdown_table(["phase (deg)", "mean phase of the observations (deg)", "Minnaert k (median)", "light error (deg)"], rows),
         ]
         headline = (
             f"Minnaert fit of a Hapke surface: light {value_range(sweep.light_err_deg)} deg off "
-            f"at phase {value_range(sweep[phase])} deg"
+            f"at phase {value_range(sweep.light_angle_deg)} deg"
         )
     return headline, lines
 
