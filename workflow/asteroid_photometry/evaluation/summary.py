@@ -305,7 +305,7 @@ def _model_mismatch(table: pd.DataFrame) -> tuple[str, list[str]]:
     if not cross.empty:
         cells = cross.groupby(["render_model", "light_angle_deg", "noise"], sort=False)
         picked = sum(int(group.loc[group.bic.idxmin(), "fit_model"] == render) for (render, _, _), group in cells)
-        lines += [f"Cross-fits: BIC picks the rendering law in {picked} of {cells.ngroups} rendered sets.", ""]
+        lines += [f"Cross-fits: BIC picks the rendering law in {picked} of {cells.ngroups} rendered sets (each law, light angle and noise).", ""]
     sweep = table[table.experiment == "phase_sweep"]
     headline = ""
     if not sweep.empty:
