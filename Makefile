@@ -7,6 +7,7 @@
 #   make venv          the virtual environment $(VENV) from requirements.txt
 #   make sysdeps       the Debian packages Mitsuba's LLVM backend and open3d need
 #   make report        results/report.zip from an existing run
+#   make summary       copy results/summary.md (written by the run) to docs/results/summary.md
 #   make unlock        release the lock a killed run left (then `make` resumes it)
 #   make lint          snakemake --lint
 #   make footprint     the disk and memory the configured run needs, and what this machine lacks
@@ -50,7 +51,7 @@ RUN_ENV := export PATH="$(abspath $(VENV))/bin:$$PATH"; \
 SNAKEMAKE := $(VENV)/bin/snakemake --cores $(CORES)
 VENV_STAMP := $(VENV)/.requirements.stamp
 
-.PHONY: reproduce test test-cluster venv sysdeps report unlock clean lint footprint help
+.PHONY: reproduce test test-cluster venv sysdeps report summary unlock clean lint footprint help
 
 reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) --rerun-incomplete $(SNAKEMAKE_ARGS)
@@ -58,6 +59,15 @@ reproduce: sysdeps venv
 
 report: venv
 	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
+
+# The committed copy of the headline numbers, from the run in results/ (the
+# README quotes it; tests/test_summary.py checks the quotes against it).
+summary:
+	@if [ ! -s results/summary.md ]; then \
+		echo "error: results/summary.md not found: run the workflow first (make reproduce)" >&2; exit 1; \
+	fi
+	mkdir -p docs/results
+	cp results/summary.md docs/results/summary.md
 
 # A run killed hard (SIGKILL, a lost node, a power cut) leaves Snakemake's lock behind.
 unlock: venv
@@ -128,4 +138,4 @@ clean:
 	rm -rf results/
 
 help:
-	@sed -n '2,16s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+	@sed -n '2,17s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))

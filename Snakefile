@@ -7,6 +7,9 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
+report: "workflow/report/landing.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/shape.smk"
 include: "workflow/rules/render.smk"
@@ -17,6 +20,7 @@ include: "workflow/rules/reconstruct.smk"
 include: "workflow/rules/sensitivity.smk"
 include: "workflow/rules/models.smk"
 include: "workflow/rules/tabulate.smk"
+include: "workflow/rules/summary.smk"
 
 
 # Rules of a few seconds that only prepare the inputs (the shape model, its
@@ -39,6 +43,7 @@ localrules:
     tabulate_model_mismatch,
     tabulate_table2,
     plot_table2,
+    summary,
 
 
 # The optional outputs, each only when its part of the experiment is configured.
@@ -56,6 +61,7 @@ rule all:
         rules.tabulate_table1.output,
         rules.plot_table1.output,
         rules.tabulate_runtime.output,
+        rules.summary.output,
         expand(rules.tabulate_sweep.output.csv, sweep=SWEEPS),
         OPTIONAL_TARGETS,
         expand(rules.plot_error_map.output.png, map_name=[m["name"] for m in config["surface_maps"]]),

@@ -442,7 +442,7 @@ def refinement_scores(set_id: str, priors: str, method: str, stage: CloudStage, 
     if method == "koizumi_lm" and scores["k_spread_refined"] > K_SPREAD_WARNING:
         log.warning(
             "set %s, priors %s: the per-point k after refinement spreads by %.3f (robust std), more than %g: the refinement's light "
-            "assumes one k for the body, and on a body whose k varies it is off by up to degrees (README, Table 2 item 7)",
+            "assumes one k for the body, and on a body whose k varies it is off by up to degrees (docs/table2.md, section 7)",
             set_id, priors, scores["k_spread_refined"], K_SPREAD_WARNING,
         )
     for suffix, result in (("", before), ("_refined", after)):

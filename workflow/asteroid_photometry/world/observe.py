@@ -24,7 +24,7 @@ ray casting with open3d on the body-frame mesh:
 With ``pixel_selection: projection`` the pixel is instead the one that
 contains the centroid's projection, whenever the ray through its centre
 hits the facet, mixed or not, as the paper did; it exists to measure what
-mixed pixels cost (README, "Mixed pixels").
+mixed pixels cost (docs/method.md, "Mixed and pure pixels").
 
 The geometry of the observations (which point, which pixel, the normal and
 view direction in the camera frame) depends on the light only through the

@@ -18,7 +18,7 @@ which the BSDF reads at each hit with ``Shape.eval_attribute_1``; the
 scalar path keeps its constants in the BSDF, as before.
 
 Variants: ``cuda_ad_rgb`` where a GPU works, else ``llvm_ad_rgb`` (needs a
-recent LLVM, see README), else ``scalar_rgb`` with a warning in the log: it
+recent LLVM, see docs/running.md, "Rendering backends"), else ``scalar_rgb`` with a warning in the log: it
 runs the Python BSDF once per sample and is about 100 times slower.
 """
 
