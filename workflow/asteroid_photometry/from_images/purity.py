@@ -30,8 +30,8 @@ each pixel its own variance. To every variance is added a floor
 ``(relative_floor * m)**2``: the scatter of the render itself and of the
 flat-facet model. On noise-free images (``variance=None``) the floor alone
 remains and the test reduces to a tight relative tolerance: with the default
-``3e-4`` and ``significance=0.01`` it rejects two pixels 0.1 % above the
-other two, as the config's ``purity_tolerance: 0.001`` does.
+``3e-4`` and ``significance=0.01`` it rejects two pixels more than about
+0.1 % above the other two, as the config's ``purity_tolerance: 0.001`` does.
 
 Like ``cloud.sample_pure``, a sample is also rejected where any of its four
 pixels reads 0 (sky, or a value clipped at the ADC's bottom) and, with a
