@@ -211,7 +211,7 @@ def _table2(table: pd.DataFrame, bounds: Mapping[str, float]) -> tuple[str, list
 def _noise(table: pd.DataFrame) -> tuple[str, list[str]]:
     _require(table, ["set_id", "method", "status", "noise_level"], "noise.csv")
     if "efficiency_albedo" not in table:
-        return "", [f"## Noise sweep (`noise.csv`)", "", f"{_sets_line(table)}; no Cramér-Rao bound in the table.", ""]
+        return "", ["## Noise sweep (`noise.csv`)", "", f"{_sets_line(table)}; no Cramér-Rao bound in the table.", ""]
     scored = table.dropna(subset=["efficiency_albedo"])
     rows = []
     for (level, method), group in scored.groupby(["noise_level", "method"], sort=False):
