@@ -47,22 +47,35 @@ def require_observations(obs: estimation.Observations) -> None:
 
 
 def run_estimator(
-    obs: estimation.Observations, method: str, *, known_k: float | None = None, variance=None, robust: bool = False
+    obs: estimation.Observations,
+    method: str,
+    *,
+    known_k: float | None = None,
+    variance=None,
+    robust: bool = False,
+    light_init=None,
+    hold_light: bool = False,
 ) -> estimation.FitResult:
     """Run the estimator ``method`` on ``obs``.
 
     - ``varpro``: weighted by ``variance`` (per observation) when given; with
       ``robust`` a Cauchy loss and outlier rejection, for observations with
       outlying rows (a reconstructed cloud's mislocated samples).
-    - ``koizumi_lm``: the paper's joint fit, unweighted, as the paper's.
+    - ``koizumi_lm``: the paper's joint fit, unweighted, as the paper's;
+      from ``light_init`` when given, and with ``hold_light`` the per-point
+      albedo and k under that light, the light not fitted.
     - ``iwano_linear``: needs ``known_k``, the Minnaert k it assumes.
     """
+    if hold_light and method != "koizumi_lm":
+        raise ValueError(f"hold_light: only koizumi_lm fits the points under a given light, not {method!r}")
     if method == "varpro":
         if robust:
             return estimation.fit_varpro(obs, loss="cauchy", reject_outliers=True)
         return estimation.fit_varpro(obs, sigma=None if variance is None else np.sqrt(variance))
     if method == "koizumi_lm":
-        return estimation.fit_koizumi_lm(obs)
+        if light_init is None and not hold_light:
+            return estimation.fit_koizumi_lm(obs)
+        return estimation.fit_koizumi_lm(obs, light_init=light_init, hold_light=hold_light)
     if method == "iwano_linear":
         if known_k is None:
             raise ValueError("iwano_linear needs the Minnaert k it assumes (known_k)")

@@ -239,7 +239,7 @@ def _refine(registration_npz, reconstruction_dir, render_dir, settings: dict) ->
     surface = cloud_lib.poisson_surface(oriented)
     obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
     require_cloud_observations(obs, settings, "the cloud")
-    start = estimation.fit_koizumi_lm(obs)
+    start = run_estimator(obs, "koizumi_lm")  # the refinement starts from the paper's estimate
     fitted = np.isfinite(start.albedo) & np.isfinite(start.minnaert_k)
     albedo, minnaert_k = float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
     pure = refine.refine_by_pure_samples(
@@ -406,8 +406,8 @@ def estimate_after_refinement(stage: CloudStage, method: str, known_k: float) ->
     if method == "koizumi_lm":
         # Two steps: the refinement's light (one k for the body), then the paper's per-point albedo and k under it.
         # The paper's joint fit, light free, is kept beside it (columns *_refined_joint).
-        joint = plausible_points(estimation.fit_koizumi_lm(pure.observations, light_init=pure.light_dir_cam))
-        after = estimation.fit_koizumi_lm(pure.observations, light_init=pure.refined_light_dir_cam, hold_light=True)
+        joint = plausible_points(run_estimator(pure.observations, method, light_init=pure.light_dir_cam))
+        after = run_estimator(pure.observations, method, light_init=pure.refined_light_dir_cam, hold_light=True)
     else:
         joint, after = None, run_estimator(pure.observations, method, known_k=known_k, robust=True)
     refit_seconds = time.perf_counter() - tick
