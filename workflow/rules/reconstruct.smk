@@ -10,7 +10,8 @@ rule reconstruct:
     params:
         use_priors=lambda wildcards: wildcards.priors == "on",
         settings=reconstruction_settings("reconstruct"),
-    threads: 2
+    # One thread: feature matching on more is not reproducible under load (see reconstruct_images).
+    threads: 1
     log:
         "logs/reconstruct/{set_id}/priors-{priors}.log",
     benchmark:
