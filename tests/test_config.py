@@ -47,7 +47,7 @@ def _walk_object_schemas(schema, path="<top level>"):
 def test_schema_forbids_unknown_keys_and_describes_every_key():
     schema = load_schema()
     objects = list(_walk_object_schemas(schema))
-    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "reconstruction", "geometry_sensitivity",
+    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "imaging_conditions[]", "reconstruction", "geometry_sensitivity",
         "model_mismatch", "model_mismatch.parameters", *(f"model_mismatch.parameters.{law}" for law in LAWS),
         "model_mismatch.fit", *(f"model_mismatch.fit.{law}" for law in LAWS),
     ]

@@ -232,31 +232,66 @@ def four_image_set(tmp_path_factory):
 
 
 RECONSTRUCTION = {
-    "intrinsics": "fixed", "camera_position_sigma_m": 0.01, "tie_point_sigma_px": 1.0, "prior_seed": 0,
+    "intrinsics": "fixed", "tie_point_sigma_px": 1.0,
     "min_pose_inliers": 15, "min_pose_inlier_ratio": 0.1, "min_track": 3, "min_observations_per_point": 6, "min_cos_emission": 0.2,
 }
 
 
 def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_image_set, tmp_path):
-    from asteroid_photometry.experiments.table2 import CloudStageInputs, fit_cloud_stage, reconstruct_stage, refine_stage, register_stage, write_table2
+    from asteroid_photometry.experiments.mission import mission_stage
+    from asteroid_photometry.experiments.table2 import (
+        CloudStageInputs, estimate_cloud_stage, reconstruct_stage, refine_stage, register_stage, score_cloud_stage, ScoringInputs, write_table2,
+    )
 
-    reconstruct_stage(four_image_set, tmp_path / "model", True, RECONSTRUCTION, 1)
+    mission_dir = tmp_path / "mission"
+    mission_stage(four_image_set, {"name": "ideal", "prior_sigma_m": 0.01}, [], 0, 0, mission_dir, tmp_path / "truth.json")
+    reconstruct_stage(mission_dir, tmp_path / "model", True, RECONSTRUCTION, 1)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
     assert status["status"] == "failed" and status["reason"].startswith("reconstruct: pycolmap registered ")
     assert "of 4 images in its largest model (at least 3 needed" in status["reason"]
     # The later stages pass it on without reading anything else (the shape model here does not exist).
     register_stage(tmp_path / "model", tmp_path / "no_shape.npz", RECONSTRUCTION, tmp_path / "reg.npz", tmp_path / "reg.json")
     assert json.loads((tmp_path / "reg.json").read_text()) == {"status": "failed", "reason": status["reason"], "registration_ok": False}
-    refine_stage(tmp_path / "reg.npz", tmp_path / "model", four_image_set, RECONSTRUCTION, tmp_path / "refined.npz")
-    fit_cloud_stage(
-        CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", four_image_set, tmp_path / "no_shape.npz", tmp_path / "refined.npz"),
-        "koizumi_lm", "light10_albedo0.6_k0.8", "on", RECONSTRUCTION, tmp_path / "row.json", tmp_path / "errors.npz",
+    refine_stage(tmp_path / "reg.npz", tmp_path / "model", mission_dir, RECONSTRUCTION, tmp_path / "refined.npz")
+    inputs = CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", mission_dir, tmp_path / "refined.npz")
+    estimate_cloud_stage(inputs, "koizumi_lm", RECONSTRUCTION, tmp_path / "estimates.npz")
+    score_cloud_stage(
+        inputs, ScoringInputs(tmp_path / "estimates.npz", tmp_path / "no_shape.npz", tmp_path / "truth.json", four_image_set),
+        "koizumi_lm", "light10_albedo0.6_k0.8", "ideal", "on", RECONSTRUCTION, tmp_path / "row.json", tmp_path / "errors.npz",
     )
     row = json.loads((tmp_path / "row.json").read_text())
-    assert row == {"set_id": "light10_albedo0.6_k0.8", "priors": "on", "method": "koizumi_lm", "status": f"failed: {status['reason']}", "registration_ok": False}
+    assert row == {
+        "set_id": "light10_albedo0.6_k0.8", "priors": "on", "method": "koizumi_lm", "status": f"failed: {status['reason']}", "registration_ok": False,
+        "imaging": "ideal",
+    }
     write_table2([tmp_path / "row.json"], tmp_path / "table2.csv", tmp_path / "table2.md")
     assert pd.read_csv(tmp_path / "table2.csv").status.iloc[0] == row["status"]
     assert "0 of 1 sets ok; 1 failed: light10_albedo0.6_k0.8 (reconstruct: pycolmap registered" in (tmp_path / "table2.md").read_text()
+
+
+def test_a_mission_set_holds_no_truth_and_its_truth_file_does(four_image_set, tmp_path):
+    from asteroid_photometry.experiments.mission import mission_stage, read_truth
+    from asteroid_photometry.world.images import mission_navigation, read_mission, read_rendered_images
+
+    condition = {"name": "amica", "sensor_level": "amica12", "psf_fwhm_px": 1.5, "gain_sigma": 0.02, "prior_sigma_m": 10.0}
+    levels = [{"name": "amica12", "full_well_e": 30000, "read_noise_e": 20, "bit_depth": 12, "radiance_at_full_well": 1.0}]
+    mission_stage(four_image_set, condition, levels, [0, 1, 2], 5, tmp_path / "mission", tmp_path / "truth.json")
+    mission, images = read_mission(tmp_path / "mission")
+    frames, rendered = read_rendered_images(four_image_set)
+    assert not {"light_dir_cam", "albedo", "minnaert_k", "bsdf"} & set(mission) and "body_to_camera" not in json.dumps(mission)
+    truth = read_truth(tmp_path / "truth.json")
+    assert truth["light_dir_cam"] == frames["light_dir_cam"] and [image["body_to_camera"] for image in truth["images"]] == [image["body_to_camera"] for image in frames["images"]]
+    # Degraded: the sensor's noise and the gains are there, and the truth file says which gain each image got.
+    assert not np.array_equal(images[0], rendered[0]) and len(truth["gains"]) == 4 and 0.9 < min(truth["gains"]) <= max(truth["gains"]) < 1.1
+    centres, sigma = mission_navigation(mission)
+    assert sigma == 10.0 and centres.shape == (4, 3) and mission["sensor"]["name"] == "amica12"
+    # A mission set without navigation cannot be reconstructed with priors: said so, naming the condition.
+    from asteroid_photometry.core.failures import BadInput
+    from asteroid_photometry.experiments.table2 import reconstruct_stage
+
+    mission_stage(four_image_set, {"name": "lost", "prior_sigma_m": 0.0}, [], 0, 0, tmp_path / "lost", tmp_path / "lost.json")
+    with pytest.raises(BadInput, match="no navigation priors .*'lost' has prior_sigma_m 0"):
+        reconstruct_stage(tmp_path / "lost", tmp_path / "model", True, RECONSTRUCTION, 1)
 
 
 # ---------------------------------------------------------------- disk and memory, before the run

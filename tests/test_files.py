@@ -56,14 +56,14 @@ def test_timings_leave_the_tables_for_fit_timing(tmp_path):
     summaries = []
     for relative, row in (
         ("results/fits/setA/varpro.json", {"k_err": 0.1, "fit_seconds": 1.5}),
-        ("results/fits_cloud/setA/priors-off/koizumi_lm.json", {"k_err": 0.2, "fit_seconds": 2.0, "refit_seconds": 0.5, "registration_seconds": 3.0}),
+        ("results/fits_cloud/ideal/setA/priors-off/koizumi_lm.json", {"k_err": 0.2, "fit_seconds": 2.0, "refit_seconds": 0.5, "registration_seconds": 3.0}),
     ):
         path = tmp_path / relative
         path.parent.mkdir(parents=True)
         path.write_text(json.dumps(row))
         summaries.append(path)
     timing = metrics.fit_timing_table(summaries)
-    assert timing[["stage", "job"]].values.tolist() == [["fit", "setA/varpro"], ["fit_cloud", "setA/priors-off/koizumi_lm"]]
+    assert timing[["stage", "job"]].values.tolist() == [["fit", "setA/varpro"], ["estimate_cloud", "ideal/setA/priors-off/koizumi_lm"]]
     assert timing.fit_seconds.tolist() == [1.5, 2.0] and timing.registration_seconds.iloc[1] == 3.0
     assert "k_err" not in timing
     assert "fit_seconds" not in metrics.TABLE1_COLUMNS

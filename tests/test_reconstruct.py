@@ -11,6 +11,7 @@ pycolmap = pytest.importorskip("pycolmap")
 
 from asteroid_photometry.world import cameras  # noqa: E402
 from asteroid_photometry.from_images import reconstruct as rc  # noqa: E402
+from asteroid_photometry.evaluation import quality  # noqa: E402
 
 DISTANCE_M = 5.0  # camera distance from the body centre; the body is a unit ball of points
 IMAGE_SIZE = 400
@@ -72,7 +73,7 @@ def perturb_poses(model, rng, angle_rad=0.01, shift=0.1):
 
 
 def true_centres_by_image_id(poses, noise_m=0.0, seed=0):
-    centres = rc.simulate_navigation_positions(poses, noise_m, seed) if noise_m else cameras.camera_centres_body(poses)
+    centres = cameras.simulate_navigation_positions(poses, noise_m, seed) if noise_m else cameras.camera_centres_body(poses)
     return centres, {index + 1: centre for index, centre in enumerate(centres)}
 
 
@@ -110,9 +111,9 @@ def test_reference_brightness_is_a_high_percentile_of_the_lit_pixels():
 def test_simulated_navigation_positions_are_truth_plus_seeded_noise():
     poses = cameras.body_to_camera_poses(2000, 5000.0)
     truth = cameras.camera_centres_body(poses)
-    first = rc.simulate_navigation_positions(poses, 2.0, seed=3)
-    np.testing.assert_array_equal(first, rc.simulate_navigation_positions(poses, 2.0, seed=3))
-    assert not np.array_equal(first, rc.simulate_navigation_positions(poses, 2.0, seed=4))
+    first = cameras.simulate_navigation_positions(poses, 2.0, seed=3)
+    np.testing.assert_array_equal(first, cameras.simulate_navigation_positions(poses, 2.0, seed=3))
+    assert not np.array_equal(first, cameras.simulate_navigation_positions(poses, 2.0, seed=4))
     errors = first - truth
     assert abs(errors.mean()) < 0.1 and abs(errors.std() - 2.0) < 0.1
 
@@ -130,15 +131,18 @@ def test_similarity_alignment_recovers_a_known_similarity():
 
 def test_pose_report_flags_residuals_clearly_below_the_stated_accuracy():
     poses = cameras.body_to_camera_poses(36, 5000.0)
-    noisy = rc.simulate_navigation_positions(poses, 1.0, seed=0)
-    on_truth = rc.pose_report(poses, poses, noisy, 1.0)  # cameras where the tie points put them: residual = noise
+    noisy = cameras.simulate_navigation_positions(poses, 1.0, seed=0)
+    on_truth = rc.pose_report(poses, noisy, 1.0)  # cameras where the tie points put them: residual = noise
     assert 0.8 < on_truth["cam_pos_rms_ratio"] < 1.2 and not on_truth["prior_overfit"]
-    assert on_truth["cam_pos_true_rms_m"] == 0.0 and on_truth["cam_rot_true_rms_deg"] < 1e-6
+    scores = quality.camera_errors(dict(enumerate(poses)), poses, noisy, "body")
+    assert scores["cam_pos_true_rms_m"] == 0.0 and scores["cam_rot_true_rms_deg"] < 1e-6
     on_priors = poses.copy()
     on_priors[:, :3, 3] = -np.einsum("nij,nj->ni", poses[:, :3, :3], noisy)  # cameras moved onto their priors
-    pulled = rc.pose_report(on_priors, poses, noisy, 1.0)
+    pulled = rc.pose_report(on_priors, noisy, 1.0)
     assert pulled["cam_pos_rms_m"] < 1e-9 and pulled["prior_overfit"]
-    assert pulled["cam_pos_true_rms_m"] == pytest.approx(pulled["prior_pos_true_rms_m"])
+    scores = quality.camera_errors(dict(enumerate(on_priors)), poses, noisy, "body")
+    assert scores["cam_pos_true_rms_m"] == pytest.approx(scores["prior_pos_true_rms_m"])
+    assert rc.pose_report(poses, None, None) == dict.fromkeys(on_truth)  # no priors: nothing to say without the truth
 
 
 def test_pose_report_without_priors_aligns_a_similarity_frame():
@@ -146,10 +150,10 @@ def test_pose_report_without_priors_aligns_a_similarity_frame():
     rng = np.random.default_rng(5)
     similarity = random_similarity(rng)  # model-from-body
     moved = np.array([rc.pose_matrix(similarity.transform_camera_world(pycolmap.Rigid3d(pose[:3, :]))) for pose in poses])
-    report = rc.pose_report(moved, poses, None, None)
-    assert report["cam_pos_rms_m"] is None and report["prior_overfit"] is None
+    report = quality.camera_errors(dict(enumerate(moved)), poses, None, "arbitrary")
     assert report["alignment_scale"] == pytest.approx(1 / 2.5)
     assert report["cam_pos_true_rms_m"] < 1e-8 and report["cam_rot_true_rms_deg"] < 1e-5
+    assert quality.camera_errors(dict(enumerate(moved)), poses, None, "body")["cam_pos_true_rms_m"] > 1.0  # taken as the body frame, it is not
 
 
 # ----------------------------------------------------------------------------------------------
@@ -161,7 +165,7 @@ def test_synthetic_model_follows_our_pose_and_pixel_conventions():
     poses, intrinsics, points = synthetic_scene()
     model = synthetic_model(poses, intrinsics, points)
     assert np.abs(rc.reprojection_residuals(model)).max() < 1e-9  # pycolmap projects as cameras.project does
-    result = rc.SparseReconstruction(model, rc.model_report(model, poses))
+    result = rc.SparseReconstruction(model, rc.model_report(model, len(poses)))
     estimated = result.body_to_camera()
     assert sorted(estimated) == list(range(N_IMAGES))
     np.testing.assert_allclose(np.array([estimated[i] for i in range(N_IMAGES)]), poses, atol=1e-12)
@@ -207,7 +211,8 @@ def test_overfit_flag_follows_the_balance_of_priors_and_tie_points(camera_positi
     model = synthetic_model(poses, intrinsics, points)
     prior_centres, priors = true_centres_by_image_id(poses, noise_m=camera_position_sigma_m, seed=11)
     rc.bundle_adjust(model, priors, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px)
-    report = rc.model_report(model, poses, prior_centres, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px)
+    report = rc.model_report(model, len(poses), prior_centres, camera_position_sigma_m=camera_position_sigma_m, tie_point_sigma_px=tie_point_sigma_px)
+    scores = quality.camera_errors(rc.SparseReconstruction(model, report).body_to_camera(), poses, prior_centres, report.world_frame)
     assert report.prior_overfit is overfit
     if overfit:
         assert report.cam_pos_rms_ratio < 0.2
@@ -215,14 +220,14 @@ def test_overfit_flag_follows_the_balance_of_priors_and_tie_points(camera_positi
         assert 0.7 < report.cam_pos_rms_ratio < 1.3
         # The tie points beat the navigation: only the 7 similarity degrees of freedom keep prior noise,
         # an RMS of about sqrt(7 / (3 n)) = 0.44 of the priors' error for n = 12.
-        assert report.cam_pos_true_rms_m < 0.7 * report.prior_pos_true_rms_m
+        assert scores["cam_pos_true_rms_m"] < 0.7 * scores["prior_pos_true_rms_m"]
 
 
 def test_sparse_reconstruction_round_trip_with_tracks(tmp_path):
     poses, intrinsics, points = synthetic_scene(n_points=40)
     model = synthetic_model(poses, intrinsics, points, pixel_noise=0.2, seed=3)
     prior_centres, _ = true_centres_by_image_id(poses, noise_m=0.05)
-    result = rc.SparseReconstruction(model, rc.model_report(model, poses, prior_centres, camera_position_sigma_m=0.05, tie_point_sigma_px=1.0), prior_centres)
+    result = rc.SparseReconstruction(model, rc.model_report(model, len(poses), prior_centres, camera_position_sigma_m=0.05, tie_point_sigma_px=1.0), prior_centres)
     result.write(tmp_path / "sparse")
     again = rc.SparseReconstruction.read(tmp_path / "sparse")
     assert again.report == result.report
@@ -281,22 +286,23 @@ def sphere_images():
 def test_reconstruct_images_end_to_end(sphere_images, tmp_path, use_priors):
     images, intrinsics, poses = sphere_images
     result = rc.reconstruct_images(
-        images, intrinsics, tmp_path / "work", true_body_to_camera=poses, use_priors=use_priors,
+        images, intrinsics, tmp_path / "work", prior_positions=cameras.simulate_navigation_positions(poses, 0.01, 0) if use_priors else None,
         camera_position_sigma_m=0.01, tie_point_sigma_px=1.0, num_threads=2,
     )
     report = result.report
+    scores = quality.camera_errors(result.body_to_camera(), poses, result.prior_positions, report.world_frame)
     assert report.n_images_registered >= 16 and report.n_points3d > 200
     assert report.reproj_rms_px < 1.0
     assert report.world_frame == ("body" if use_priors else "arbitrary")
     # Within 2 % of the distance and 1 degree of the truth: a wrong frame convention would be off by the whole distance.
-    assert report.cam_pos_true_rms_m < 0.02 * 4.0 and report.cam_rot_true_rms_deg < 1.0
+    assert scores["cam_pos_true_rms_m"] < 0.02 * 4.0 and scores["cam_rot_true_rms_deg"] < 1.0
     if use_priors:
         assert report.cam_pos_rms_m is not None and report.prior_overfit is not None
         estimated = result.body_to_camera()
         index = result.registered_indices[0]
         assert np.linalg.norm(cameras.camera_centres_body(estimated[index][None])[0] - cameras.camera_centres_body(poses[index][None])[0]) < 0.1
     else:
-        assert report.cam_pos_rms_m is None and report.alignment_scale > 0
+        assert report.cam_pos_rms_m is None and scores["alignment_scale"] > 0
     tracks = result.tracks()
     assert set(np.unique(tracks["image"])) <= set(result.registered_indices.tolist())
     assert tracks["point"].max() < report.n_points3d
@@ -307,7 +313,7 @@ def test_the_same_images_give_the_same_model_bit_for_bit(sphere_images, tmp_path
     images, intrinsics, poses = sphere_images
     models = []
     for run in ("a", "b"):
-        result = rc.reconstruct_images(images, intrinsics, tmp_path / run, true_body_to_camera=poses, use_priors=False, num_threads=2)
+        result = rc.reconstruct_images(images, intrinsics, tmp_path / run, num_threads=2)
         model = result.model
         assert sorted((model.image(i).name, i) for i in model.images) == [(rc.image_name(k), k + 1) for k in range(len(images))]
         models.append((result.body_to_camera(), *result.points3d()))

@@ -23,7 +23,7 @@ REPO = Path(__file__).resolve().parents[1]
 SET_ID = "light10_albedo0.6_k0.8"
 TRIM = [
     "light_angles_deg=[10]", "noise_levels=[]", "surface_maps=[]", "geometry_sensitivity={enabled: false}",
-    "estimators=[varpro, koizumi_lm]", "reconstruction={refine_candidates: 20000}",
+    "estimators=[varpro, koizumi_lm]", "reconstruction={refine_candidates: 20000}", "imaging_conditions=[{name: ideal, prior_sigma_m: 1.0}]",
 ]
 # The science tables: the same config must give the same bytes. runtime.csv and fit_timing.csv are wall-clock times.
 SCIENCE_TABLES = ["table1.csv", "table1.md", "table2.csv", "table2.md"]
@@ -67,7 +67,7 @@ def test_same_config_twice_gives_the_same_tables(first_run, second_run):
     timing = pd.read_csv(first_run / "results/tables/fit_timing.csv").set_index(["stage", "job"])
     assert len(timing) == 2 + 2 * 2  # Table 1's fits, Table 2's (two estimators)
     assert (timing.loc[("fit", f"{SET_ID}/koizumi_lm"), "fit_seconds"] > 0).all()
-    cloud = timing.loc["fit_cloud"]
+    cloud = timing.loc["estimate_cloud"]
     assert (cloud.fit_seconds > 0).all() and (cloud.refit_seconds > 0).all() and (cloud.registration_seconds > 0).all()
 
 
@@ -103,13 +103,13 @@ def _kill_when(process, log, condition, what, timeout=600):
 def _nothing_half_written(workdir):
     """Every output under its real name is whole: rendered sets have every image, .npz load, .json and .csv parse."""
     results = workdir / "results"
-    for frames in results.glob("render/*/frames.json"):
+    for frames in results.glob("truth/render/*/frames.json"):
         images = json.loads(frames.read_text())["images"]
         assert all((frames.parent / image["file"]).stat().st_size > 0 for image in images), frames.parent
-    for render_dir in results.glob("render/*"):
+    for render_dir in results.glob("truth/render/*"):
         if not render_dir.name.startswith("."):
             assert (render_dir / "frames.json").is_file(), f"{render_dir} is there without its frames.json"
-    for model in results.glob("reconstruction/*/*"):
+    for model in results.glob("reconstruction/*/*/*"):
         if not model.name.startswith("."):
             assert (model / "report.json").is_file() and (model / "model" / "points3D.bin").is_file(), model
     for path in results.rglob("*"):
@@ -167,8 +167,8 @@ def test_killed_run_resumes_to_the_same_tables(first_run, tmp_path):
 
 
 def _running_fit(workdir):
-    """A fit job (Table 1's ``fit`` or Table 2's ``fit_cloud``) that has started (its log exists) but not written its summary."""
-    for stage, results in (("fit", "fits"), ("fit_cloud", "fits_cloud")):
+    """A fit job (Table 1's ``fit`` or Table 2's ``score_cloud``) that has started (its log exists) but not written its summary."""
+    for stage, results in (("fit", "fits"), ("score_cloud", "fits_cloud")):
         for log_file in (workdir / "logs" / stage).glob("**/*.log"):
             job = log_file.relative_to(workdir / "logs" / stage).with_suffix(".json")
             if not (workdir / "results" / results / job).exists():

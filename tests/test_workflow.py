@@ -35,9 +35,11 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["fit"] == (16 + 16 + 48) * 3
     # Table 1's two light angles, and the six more of the phase sweep.
     assert jobs["observation_geometry"] == 2 + 6
-    assert jobs["reconstruct"] == 16 * 2  # with and without priors
-    assert jobs["refine_cloud"] == 16 * 2
-    assert jobs["fit_cloud"] == 16 * 2 * 3
+    assert jobs["reconstruct"] == 2 * 16 * 2  # two conditions, with and without priors
+    assert jobs["refine_cloud"] == 2 * 16 * 2
+    # Table 2 under two imaging conditions (ideal, amica): a mission set per condition and base set.
+    assert jobs["mission"] == 2 * 16
+    assert jobs["estimate_cloud"] == jobs["score_cloud"] == 2 * 16 * 2 * 3
     assert jobs["noise_monte_carlo"] == 16
     assert jobs["geometry_sensitivity"] == 16
     # The shape model ships with the workflow: a clone needs no network.
@@ -99,14 +101,22 @@ def test_small_run_writes_every_output(small_run):
                  "results/plots/per_point_errors.png", "results/plots/noise_against_bound.png",
                  "results/plots/error_map_field.png", "results/plots/table2_errors.png", "results/plots/table2_cloud_errors.png"]:
         assert (small_run / name).stat().st_size > 0, name
-    frames = json.loads((small_run / "results/render/light10_albedo0.6_k0.8/frames.json").read_text())
+    frames = json.loads((small_run / "results/truth/render/light10_albedo0.6_k0.8/frames.json").read_text())
     assert len(frames["images"]) == 36
     assert frames["light_dir_cam"][0] > 0
-    assert all((small_run / "results/render/light10_albedo0.6_k0.8" / image["file"]).exists() for image in frames["images"])
+    assert all((small_run / "results/truth/render/light10_albedo0.6_k0.8" / image["file"]).exists() for image in frames["images"])
+    # What the image-only path reads holds no truth: no pose, light, albedo or k; the truth file beside it does.
+    for imaging in ("ideal", "amica"):
+        mission = json.loads((small_run / f"results/mission/{imaging}/light10_albedo0.6_k0.8/mission.json").read_text())
+        assert not {"light_dir_cam", "albedo", "minnaert_k", "facet_maps"} & set(mission)
+        assert all(set(entry) == {"index", "file", "time_s"} for entry in mission["images"])
+        truth = json.loads((small_run / f"results/truth/mission/{imaging}/light10_albedo0.6_k0.8.json").read_text())
+        assert truth["light_dir_cam"] == frames["light_dir_cam"] and len(truth["images"]) == 36
+    assert mission["sensor"]["name"] == "amica12" and mission["navigation"]["sigma_m"] == 10.0
     runtime = pd.read_csv(small_run / "results/tables/runtime.csv")
     assert set(runtime.stage) == {
-        "render", "add_noise", "observation_geometry", "observe", "fit", "reconstruct", "register_cloud", "refine_cloud", "fit_cloud",
-        "noise_monte_carlo", "geometry_sensitivity", "render_model_set", "fit_model_set", "phase_sweep_set",
+        "render", "add_noise", "observation_geometry", "observe", "fit", "reconstruct", "register_cloud", "refine_cloud", "mission",
+        "estimate_cloud", "score_cloud", "noise_monte_carlo", "geometry_sensitivity", "render_model_set", "fit_model_set", "phase_sweep_set",
     }
     for sweep in ("noise", "surface_maps"):
         assert (small_run / f"results/tables/{sweep}.md").stat().st_size > 0
@@ -146,7 +156,7 @@ def test_small_run_sweeps(small_run):
         fitted = np.isfinite(estimates["albedo"])
         z = (estimates["albedo"] - estimates["albedo_true"])[fitted] / estimates["albedo_std"][fitted]
     assert 0.8 < np.sqrt(np.mean(z**2)) < 1.25
-    frames = json.loads((small_run / "results/render/light0_albedo0.6_k0.8_noise-amica12/frames.json").read_text())
+    frames = json.loads((small_run / "results/truth/render/light0_albedo0.6_k0.8_noise-amica12/frames.json").read_text())
     assert frames["sensor"]["bit_depth"] == 12
     mapped = pd.read_csv(small_run / "results/tables/surface_maps.csv")
     per_point = mapped[mapped.method == "koizumi_lm"]
@@ -173,9 +183,12 @@ def test_small_run_noise_monte_carlo(small_run):
 
 
 def test_small_run_table2_from_images_alone(small_run):
-    table = pd.read_csv(small_run / "results/tables/table2.csv")
-    assert len(table) == 2 * 2 * 3  # sets x prior settings x estimators
+    everything = pd.read_csv(small_run / "results/tables/table2.csv")
+    assert len(everything) == 2 * 2 * 2 * 3  # conditions x sets x prior settings x estimators
+    assert list(everything.columns[:8]) == ["set_id", "imaging", "priors", "method", "status", "light_dir_err_deg_final", "albedo_err_final", "k_err_final"]
     assert (small_run / "results/tables/table2.md").stat().st_size > 0
+    # The paper's world: today's renders, 1 m navigation priors.
+    table = everything[everything.imaging == "ideal"]
     with_priors = table[table.priors == "on"]
     assert with_priors.registration_ok.all()
     assert (with_priors.n_images_registered >= 12).all()
@@ -318,7 +331,7 @@ def fault_config(path):
     config = yaml.safe_load((REPO / "config" / "test.yaml").read_text())
     config.update(
         light_angles_deg=[10], albedos=[0.5, 0.6], minnaert_k=[0.8, 0.9], estimators=["koizumi_lm"],
-        noise_levels=[], surface_maps=[],
+        noise_levels=[], surface_maps=[], imaging_conditions=[{"name": "ideal", "prior_sigma_m": 1.0}],
     )
     config["reconstruction"]["priors"] = [True]
     config["geometry_sensitivity"]["enabled"] = False
@@ -332,17 +345,17 @@ def inject_faults(workdir):
     import pycolmap
     from asteroid_photometry.world.images import write_linear_exr
 
-    blank_dir = workdir / "results/render" / BLANK
+    blank_dir = workdir / "results/truth/render" / BLANK
     for path in blank_dir.glob("image_*.exr"):
         write_linear_exr(path, np.zeros((512, 512)))
-    few_dir = workdir / "results/render" / FEW_IMAGES
+    few_dir = workdir / "results/truth/render" / FEW_IMAGES
     frames = json.loads((few_dir / "frames.json").read_text())
     for entry in frames["images"]:
         if entry["index"] not in KEPT_IMAGES:
             (few_dir / entry["file"]).unlink()
     frames["images"] = [entry for entry in frames["images"] if entry["index"] in KEPT_IMAGES]
     (few_dir / "frames.json").write_text(json.dumps(frames))
-    model_dir = workdir / "results/reconstruction" / NO_REGISTRATION / "priors-on" / "model"
+    model_dir = workdir / "results/reconstruction/ideal" / NO_REGISTRATION / "priors-on" / "model"
     model = pycolmap.Reconstruction()
     model.read(model_dir)
     rng = np.random.default_rng(0)
@@ -355,7 +368,7 @@ def inject_faults(workdir):
 def fault_run(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("fault_run")
     config = ["--configfile", str(fault_config(workdir / "faults.yaml"))]
-    first = [*(f"results/render/{set_id}" for set_id in (HEALTHY, BLANK, FEW_IMAGES)), f"results/reconstruction/{NO_REGISTRATION}/priors-on"]
+    first = [*(f"results/truth/render/{set_id}" for set_id in (HEALTHY, BLANK, FEW_IMAGES)), f"results/reconstruction/ideal/{NO_REGISTRATION}/priors-on"]
     run = snakemake(*first, "--cores", "2", "-d", str(workdir), *config, timeout=1800)
     assert run.returncode == 0, run.stdout[-5000:] + run.stderr[-5000:]
     inject_faults(workdir)
@@ -384,7 +397,7 @@ def test_each_faulty_set_is_a_row_with_its_reason(fault_run):
     assert (table1.loc[[BLANK, FEW_IMAGES], ["light_dir_err_deg", "albedo_err", "k_err", "n_points"]].isna()).all().all()
     assert (table1.loc[[HEALTHY, NO_REGISTRATION], "status"] == "ok").all()
     table2 = pd.read_csv(fault_run / "results/tables/table2.csv").set_index("set_id")
-    assert table2.loc[BLANK, "status"].startswith("failed: reconstruct: 36 of 36 images are blank")
+    assert table2.loc[BLANK, "status"].startswith("failed: mission: 36 of 36 images are blank")
     assert table2.loc[FEW_IMAGES, "status"].startswith("failed: reconstruct: pycolmap registered ")
     assert table2.loc[NO_REGISTRATION, "status"].startswith("failed: register_cloud: registration failed: ")
     assert table2.loc[HEALTHY, "status"] == "ok"
@@ -402,7 +415,7 @@ def test_the_healthy_set_is_unchanged_by_the_others_failures(fault_run, small_ru
     ours, reference = (pd.read_csv(run / "results/tables/table1.csv").set_index(keys).loc[(HEALTHY, "koizumi_lm")] for run in (fault_run, small_run))
     assert_same_rows(ours.to_dict(), reference.to_dict())
     # Table 2: the same row, every number there (the reconstruction is deterministic for a given config and seed).
-    keys = ["set_id", "priors", "method"]
-    ours, reference = (pd.read_csv(run / "results/tables/table2.csv").set_index(keys).loc[(HEALTHY, "on", "koizumi_lm")] for run in (fault_run, small_run))
+    keys = ["set_id", "imaging", "priors", "method"]
+    ours, reference = (pd.read_csv(run / "results/tables/table2.csv").set_index(keys).loc[(HEALTHY, "ideal", "on", "koizumi_lm")] for run in (fault_run, small_run))
     assert ours.status == "ok" and ours.n_images_registered == reference.n_images_registered
     assert_same_rows(ours.to_dict(), reference.to_dict())

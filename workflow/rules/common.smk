@@ -37,6 +37,10 @@ SWEEPS = {
 }
 SWEEPS = {sweep: ids for sweep, ids in SWEEPS.items() if ids}
 PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["priors"]] if config["reconstruction"]["enabled"] else []
+# Table 2's imaging conditions, by name.
+CONDITIONS = {entry["name"]: entry for entry in config["imaging_conditions"]} if PRIOR_SETTINGS else {}
+# The cloud drawn in Table 2's figure: the first condition's.
+TABLE2_PLOT_CONDITION = next(iter(CONDITIONS), "ideal")
 # An empty noise_levels turns the noise off, and the noise Monte Carlo with it.
 MONTE_CARLO_SETS = BASE_SETS if config["noise_monte_carlo"]["realisations"] > 0 and config["noise_levels"] else []
 # The geometry sensitivity study explains Table 2: it runs with it.
@@ -79,10 +83,25 @@ wildcard_constraints:
     method="|".join(ESTIMATORS),
     sweep="|".join(SWEEPS) or "none",
     priors="on|off",
+    imaging="|".join(CONDITIONS) or "none",
 
 
-# A set's rendered images: written by rule render (clean sets) or add_noise (noisy ones).
-RENDERED_SET_DIR = "results/render/{set_id}"
+# A set's rendered images and the renderer's record of them (true poses, light, albedo, k): written by rule
+# render (clean sets) or add_noise (noisy ones). Truth: only the world and the scoring rules read it.
+RENDERED_SET_DIR = "results/truth/render/{set_id}"
+# A set as a mission knows it under one imaging condition (rule mission): the image-only path starts here.
+MISSION_SET_DIR = "results/mission/{imaging}/{set_id}"
+
+
+def condition_render_dir(wildcards):
+    """The rendered set an imaging condition starts from: the base set, or its variant with the condition's surface map."""
+    surface_map = CONDITIONS[wildcards.imaging].get("surface_map")
+    return RENDERED_SET_DIR.format(set_id=wildcards.set_id + (f"_map-{surface_map}" if surface_map else ""))
+
+
+def mission_seed(wildcards):
+    """The seed of a mission set's degradations: noise_seed, the set's own seed and the condition's place in the list."""
+    return [config["noise_seed"], SETS[wildcards.set_id].seed, list(CONDITIONS).index(wildcards.imaging)]
 
 
 def split_noisy_set(set_id):

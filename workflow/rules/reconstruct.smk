@@ -1,21 +1,23 @@
 # Table 2, from images alone: sparse reconstruction, registration to the
-# shape model, the estimators on the reconstructed cloud, refinement.
+# shape model, refinement, the estimators on the reconstructed cloud, each
+# from the mission set (rule mission) and no truth; then the scoring, which
+# alone reads the truth.
 
 
 rule reconstruct:
     input:
-        images=RENDERED_SET_DIR,
+        mission=rules.mission.output.mission,
     output:
-        model=directory("results/reconstruction/{set_id}/priors-{priors}"),
+        model=directory("results/reconstruction/{imaging}/{set_id}/priors-{priors}"),
     params:
         use_priors=lambda wildcards: wildcards.priors == "on",
         settings=reconstruction_settings("reconstruct"),
     # One thread: feature matching on more is not reproducible under load (see reconstruct_images).
     threads: 1
     log:
-        "logs/reconstruct/{set_id}/priors-{priors}.log",
+        "logs/reconstruct/{imaging}/{set_id}/priors-{priors}.log",
     benchmark:
-        "benchmarks/reconstruct/{set_id}/priors-{priors}.tsv"
+        "benchmarks/reconstruct/{imaging}/{set_id}/priors-{priors}.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:
@@ -27,14 +29,14 @@ rule register_cloud:
         model=rules.reconstruct.output.model,
         shape=rules.prepare_shape.output.npz,
     output:
-        npz="results/registration/{set_id}/priors-{priors}.npz",
-        summary="results/registration/{set_id}/priors-{priors}.json",
+        npz="results/registration/{imaging}/{set_id}/priors-{priors}.npz",
+        summary="results/registration/{imaging}/{set_id}/priors-{priors}.json",
     params:
         settings=reconstruction_settings("register"),
     log:
-        "logs/register_cloud/{set_id}/priors-{priors}.log",
+        "logs/register_cloud/{imaging}/{set_id}/priors-{priors}.log",
     benchmark:
-        "benchmarks/register_cloud/{set_id}/priors-{priors}.tsv"
+        "benchmarks/register_cloud/{imaging}/{set_id}/priors-{priors}.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:
@@ -45,47 +47,72 @@ rule refine_cloud:
     input:
         registration=rules.register_cloud.output.npz,
         model=rules.reconstruct.output.model,
-        images=RENDERED_SET_DIR,
+        mission=rules.mission.output.mission,
     output:
-        npz="results/refined_cloud/{set_id}/priors-{priors}.npz",
+        npz="results/refined_cloud/{imaging}/{set_id}/priors-{priors}.npz",
     params:
         settings=reconstruction_settings("refine"),
     log:
-        "logs/refine_cloud/{set_id}/priors-{priors}.log",
+        "logs/refine_cloud/{imaging}/{set_id}/priors-{priors}.log",
     benchmark:
-        "benchmarks/refine_cloud/{set_id}/priors-{priors}.tsv"
+        "benchmarks/refine_cloud/{imaging}/{set_id}/priors-{priors}.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:
         "../scripts/refine_cloud.py"
 
 
-rule fit_cloud:
+rule estimate_cloud:
     input:
         registration=rules.register_cloud.output.npz,
         registration_summary=rules.register_cloud.output.summary,
         model=rules.reconstruct.output.model,
-        images=RENDERED_SET_DIR,
-        shape=rules.prepare_shape.output.npz,
+        mission=rules.mission.output.mission,
         refined=rules.refine_cloud.output.npz,
     output:
-        summary="results/fits_cloud/{set_id}/priors-{priors}/{method}.json",
-        errors="results/fits_cloud/{set_id}/priors-{priors}/{method}.npz",
+        estimates="results/estimates_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz",
     params:
         settings=reconstruction_settings("cloud"),
     log:
-        "logs/fit_cloud/{set_id}/priors-{priors}/{method}.log",
+        "logs/estimate_cloud/{imaging}/{set_id}/priors-{priors}/{method}.log",
     benchmark:
-        "benchmarks/fit_cloud/{set_id}/priors-{priors}/{method}.tsv"
+        "benchmarks/estimate_cloud/{imaging}/{set_id}/priors-{priors}/{method}.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:
-        "../scripts/fit_cloud.py"
+        "../scripts/estimate_cloud.py"
+
+
+# Scoring: the only rule of Table 2 that reads the truth (the mission set's truth file, the rendered set).
+rule score_cloud:
+    input:
+        estimates=rules.estimate_cloud.output.estimates,
+        registration=rules.register_cloud.output.npz,
+        registration_summary=rules.register_cloud.output.summary,
+        model=rules.reconstruct.output.model,
+        mission=rules.mission.output.mission,
+        refined=rules.refine_cloud.output.npz,
+        shape=rules.prepare_shape.output.npz,
+        truth=rules.mission.output.truth,
+        render_truth=condition_render_dir,
+    output:
+        summary="results/fits_cloud/{imaging}/{set_id}/priors-{priors}/{method}.json",
+        errors="results/fits_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz",
+    params:
+        settings=reconstruction_settings("cloud"),
+    log:
+        "logs/score_cloud/{imaging}/{set_id}/priors-{priors}/{method}.log",
+    benchmark:
+        "benchmarks/score_cloud/{imaging}/{set_id}/priors-{priors}/{method}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/score_cloud.py"
 
 
 rule tabulate_table2:
     input:
-        summaries=expand(rules.fit_cloud.output.summary, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
+        summaries=expand(rules.score_cloud.output.summary, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
     output:
         csv=report("results/tables/table2.csv", caption="../report/table2.rst", category="Tables"),
         markdown="results/tables/table2.md",
@@ -100,15 +127,15 @@ rule tabulate_table2:
 rule plot_table2:
     input:
         table=rules.tabulate_table2.output.csv,
-        cloud_errors=rules.fit_cloud.output.errors.format(
-            set_id=TABLE2_PLOT_SET, priors=PRIOR_SETTINGS[0] if PRIOR_SETTINGS else "on", method=TABLE2_PLOT_METHOD
+        cloud_errors=rules.score_cloud.output.errors.format(
+            imaging=TABLE2_PLOT_CONDITION, set_id=TABLE2_PLOT_SET, priors=PRIOR_SETTINGS[0] if PRIOR_SETTINGS else "on", method=TABLE2_PLOT_METHOD
         ),
     output:
         stages=report("results/plots/table2_errors.png", caption="../report/table2_plots.rst", category="Plots"),
         cloud=report("results/plots/table2_cloud_errors.png", caption="../report/table2_plots.rst", category="Plots"),
     params:
         method=TABLE2_PLOT_METHOD,
-        title=f"{TABLE2_PLOT_SET}, priors {PRIOR_SETTINGS[0] if PRIOR_SETTINGS else 'on'}, {TABLE2_PLOT_METHOD}: the reconstructed cloud's per-point errors",
+        title=f"{TABLE2_PLOT_SET}, imaging {TABLE2_PLOT_CONDITION}, priors {PRIOR_SETTINGS[0] if PRIOR_SETTINGS else 'on'}, {TABLE2_PLOT_METHOD}: the reconstructed cloud's per-point errors",
     log:
         "logs/plot_table2.log",
     conda:

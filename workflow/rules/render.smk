@@ -45,3 +45,28 @@ rule add_noise:
         "../../envs/photometry.yaml"
     script:
         "../scripts/add_noise.py"
+
+
+# What a mission would know of a base set under one imaging condition (the images as its camera records
+# them, the navigation priors, the sensor model), and the truth beside it: Table 2 starts from the first.
+rule mission:
+    input:
+        images=condition_render_dir,
+    output:
+        mission=directory(MISSION_SET_DIR),
+        truth="results/truth/mission/{imaging}/{set_id}.json",
+    wildcard_constraints:
+        set_id=RENDERED_SET,
+    params:
+        condition=lambda wildcards: CONDITIONS[wildcards.imaging],
+        noise_levels=config["noise_levels"],
+        seed=mission_seed,
+        prior_seed=config["reconstruction"]["prior_seed"],
+    log:
+        "logs/mission/{imaging}/{set_id}.log",
+    benchmark:
+        "benchmarks/mission/{imaging}/{set_id}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/mission.py"

@@ -34,7 +34,7 @@ rule imaging_geometry:
     input:
         shape=rules.prepare_shape.output.npz,
     output:
-        cameras="results/geometry/cameras.json",
+        cameras="results/truth/geometry/cameras.json",
     params:
         n_images=config["n_images"],
         image_size=config["image_size"],

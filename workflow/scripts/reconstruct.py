@@ -5,4 +5,4 @@ from asteroid_photometry.core.logs import setup_logging
 from asteroid_photometry.experiments.table2 import reconstruct_stage
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
-reconstruct_stage(snakemake.input.images, snakemake.output.model, snakemake.params.use_priors, snakemake.params.settings, snakemake.threads)  # noqa: F821
+reconstruct_stage(snakemake.input.mission, snakemake.output.model, snakemake.params.use_priors, snakemake.params.settings, snakemake.threads)  # noqa: F821

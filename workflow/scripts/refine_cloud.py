@@ -8,7 +8,7 @@ setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: direct
 refine_stage(
     snakemake.input.registration,  # noqa: F821
     snakemake.input.model,  # noqa: F821
-    snakemake.input.images,  # noqa: F821
+    snakemake.input.mission,  # noqa: F821
     snakemake.params.settings,  # noqa: F821
     snakemake.output.npz,  # noqa: F821
 )

@@ -176,6 +176,7 @@ def validate_config(config):
 
 def _check_cross_references(config):
     """What a JSON Schema cannot say: a key that names an entry of another key."""
+    _check_imaging_conditions(config)
     models = config.get("model_mismatch", {})
     level_names = [level.get("name") for level in config.get("noise_levels", [])]
     # As for the Monte Carlo: an empty noise_levels turns the noisy cross-fits off, a name that is not there is a mistake.
@@ -202,3 +203,28 @@ def _check_cross_references(config):
             f"config key 'noise_monte_carlo.level': {study['level']!r} is not the name of a 'noise_levels' entry "
             f"(names: {names}); name one, or set noise_monte_carlo.realisations to 0"
         )
+
+
+def _check_imaging_conditions(config):
+    """Table 2's imaging conditions: unique names, names of existing noise levels and surface maps, what the rules run."""
+    if not config.get("reconstruction", {}).get("enabled", True):
+        return
+    conditions = config.get("imaging_conditions", [])
+    names = [entry["name"] for entry in conditions]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise ConfigError(f"config key 'imaging_conditions': the names must be unique, {repeated} repeated")
+    level_names = [level.get("name") for level in config.get("noise_levels", [])]
+    map_names = [entry.get("name") for entry in config.get("surface_maps", [])]
+    uses_priors = True in config.get("reconstruction", {}).get("priors", [True])
+    for position, entry in enumerate(conditions):
+        where = f"config key 'imaging_conditions[{position}]' ({entry['name']})"
+        if entry.get("sensor_level") is not None and entry["sensor_level"] not in level_names:
+            raise ConfigError(f"{where}: sensor_level {entry['sensor_level']!r} is not the name of a 'noise_levels' entry (names: {level_names})")
+        if entry.get("surface_map") is not None and entry["surface_map"] not in map_names:
+            raise ConfigError(f"{where}: surface_map {entry['surface_map']!r} is not the name of a 'surface_maps' entry (names: {map_names})")
+        for key in ("view_latitude_deg", "light_out_of_plane_deg"):
+            if entry.get(key, 0.0) != 0.0:
+                raise ConfigError(f"{where}: {key} {entry[key]} is not run yet; only 0 (the configured imaging geometry and light angles)")
+        if uses_priors and entry.get("prior_sigma_m", 1.0) == 0.0:
+            raise ConfigError(f"{where}: prior_sigma_m 0 gives no navigation priors, but reconstruction.priors asks for a reconstruction with them")

@@ -213,7 +213,7 @@ def fit_timing_table(summary_paths) -> pd.DataFrame:
         path = Path(path)
         parts = path.parts[path.parts.index("results") + 1 :] if "results" in path.parts else path.parts[-3:]
         summary = json.loads(path.read_text())
-        stage = {"fits": "fit", "fits_cloud": "fit_cloud"}.get(parts[0], parts[0])
+        stage = {"fits": "fit", "fits_cloud": "estimate_cloud"}.get(parts[0], parts[0])
         rows.append({"stage": stage, "job": "/".join(parts[1:]).removesuffix(".json"), **{k: v for k, v in summary.items() if k.endswith(TIMING_SUFFIX)}})
     return pd.DataFrame(rows)
 

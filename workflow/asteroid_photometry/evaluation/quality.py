@@ -24,6 +24,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from asteroid_photometry.from_images.reconstruct import rms, similarity_alignment
+from asteroid_photometry.world.cameras import camera_centres_body
 from asteroid_photometry.world.mesh import (
     body_length_m,
     sample_surface,
@@ -202,3 +204,38 @@ def reconstruction_quality(
         normal_error_median_unsigned_deg=normal_error_median_unsigned_deg,
         flipped_normal_fraction=flipped_normal_fraction,
     )
+
+
+def camera_errors(body_to_camera: dict, true_body_to_camera: np.ndarray, prior_positions: np.ndarray | None, world_frame: str) -> dict:
+    """How far a reconstruction's cameras are from the true ones: the scoring half of its report.
+
+    ``body_to_camera``: the estimated pose of every registered image (set
+    index -> 4x4), in the body frame when ``world_frame == "body"`` (priors
+    on), else in a similarity frame of the model's own; then the cameras are
+    first mapped onto the true ones by the least-squares similarity of their
+    centres (``alignment_scale``: its scale). ``cam_pos_true_rms_m``: RMS
+    distance of the centres (metres); ``cam_rot_true_rms_deg``: RMS angle of
+    ``R_est R_true^T``; ``prior_pos_true_rms_m``: the navigation priors'
+    own RMS error, with priors.
+    """
+    indices = sorted(body_to_camera)
+    estimated = np.array([body_to_camera[index] for index in indices], dtype=float).reshape(-1, 4, 4)
+    true = np.asarray(true_body_to_camera, dtype=float)[indices].reshape(-1, 4, 4)
+    centres, true_centres = camera_centres_body(estimated), camera_centres_body(true)
+    rotations = estimated[:, :3, :3]
+    errors = {"prior_pos_true_rms_m": None, "alignment_scale": None}
+    if world_frame == "body":
+        if prior_positions is not None:
+            errors["prior_pos_true_rms_m"] = rms(np.asarray(prior_positions, dtype=float)[indices] - true_centres)
+    elif len(centres) >= 3:
+        scale, rotation, translation = similarity_alignment(centres, true_centres)
+        centres = scale * centres @ rotation.T + translation
+        rotations = rotations @ rotation.T  # body from model frame is `rotation`: R_cam_from_body = R_cam_from_model R^T
+        errors["alignment_scale"] = scale
+    else:
+        centres, rotations = np.full_like(centres, np.nan), np.full_like(rotations, np.nan)
+    relative = np.einsum("nij,nkj->nik", rotations, true[:, :3, :3])
+    angles_deg = np.degrees(np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+    errors["cam_pos_true_rms_m"] = rms(centres - true_centres)
+    errors["cam_rot_true_rms_deg"] = float(np.sqrt(np.mean(angles_deg**2))) if len(angles_deg) else float("nan")
+    return errors

@@ -5,10 +5,12 @@ Nothing that estimates reads this module; the stages that score call it.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
+from asteroid_photometry.core.failures import check_status
 from asteroid_photometry.evaluation import metrics
 from asteroid_photometry.world.surface_maps import FACET_MAPS_FILE, load_facet_maps
 
@@ -41,3 +43,11 @@ def true_light(frames: dict) -> np.ndarray:
 def true_poses(frames: dict) -> np.ndarray:
     """The body-to-camera pose of every image of a set, (n, 4, 4): what the renderer used, not what a mission knows."""
     return np.array([image["body_to_camera"] for image in frames["images"]], dtype=float)
+
+
+def rendered_truth(render_dir) -> dict:
+    """A rendered set's record (``frames.json``: true poses, light, albedo and k), read for scoring without its images."""
+    path = Path(render_dir) / "frames.json"
+    frames = json.loads(path.read_text())
+    check_status(frames, path)
+    return frames

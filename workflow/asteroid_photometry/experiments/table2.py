@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from asteroid_photometry import estimation
 from asteroid_photometry.core import files
 from asteroid_photometry.core.failures import (
     check_npz,
+    BadInput,
     check_status,
     DataFailure,
     OK,
@@ -38,11 +39,14 @@ from asteroid_photometry.core.failures import (
 )
 from asteroid_photometry.estimation.registry import run_estimator
 from asteroid_photometry.evaluation import metrics, quality
-from asteroid_photometry.evaluation.truth import true_poses, truth_for_facets
+from asteroid_photometry.evaluation.truth import rendered_truth, true_poses, truth_for_facets
+from asteroid_photometry.experiments.mission import read_truth
 from asteroid_photometry.from_images import cloud as cloud_lib, reconstruct, refine, register
+from asteroid_photometry.from_images.purity import PurityTest
 from asteroid_photometry.world import mesh
 from asteroid_photometry.world.cameras import Intrinsics
-from asteroid_photometry.world.images import read_rendered_images
+from asteroid_photometry.world.images import mission_navigation, read_mission
+from asteroid_photometry.world.noise import sensor_from_config
 from asteroid_photometry.world.shape import load_shape_npz
 
 log = logging.getLogger(__name__)
@@ -58,10 +62,7 @@ STATUS_FILE = "status.json"
 #: The reconstruction keys (config key ``reconstruction``) each Table 2 stage reads, and no other: the rules pass
 #: each stage only its own (:func:`stage_settings`), so a key read here but not declared fails loudly.
 STAGE_KEYS = {
-    "reconstruct": (
-        "intrinsics", "camera_position_sigma_m", "tie_point_sigma_px", "prior_seed", "min_pose_inliers", "min_pose_inlier_ratio",
-        "min_track",
-    ),
+    "reconstruct": ("intrinsics", "tie_point_sigma_px", "min_pose_inliers", "min_pose_inlier_ratio", "min_track"),
     "register": ("min_track",),
     "cloud": ("min_observations_per_point", "min_cos_emission", "purity_tolerance"),
     "refine": (
@@ -110,8 +111,8 @@ def read_reconstruction(reconstruction_dir) -> reconstruct.SparseReconstruction:
     return reconstruct.SparseReconstruction.read(reconstruction_dir)
 
 
-def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
-    """Sparse reconstruction of one set, with or without navigation position priors.
+def reconstruct_stage(mission_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
+    """Sparse reconstruction of one mission set (``world.images.read_mission``), with or without its navigation priors.
 
     A model whose surface faces inwards (``outward_fraction`` below 0.5) is
     the depth-reversed twin, not the body: the mapper is run again with the
@@ -123,24 +124,28 @@ def reconstruct_stage(render_dir, out_dir, use_priors: bool, settings: dict, thr
     """
     out_dir = Path(out_dir)
     try:
-        _reconstruct(render_dir, out_dir, use_priors, settings, threads)
+        _reconstruct(mission_dir, out_dir, use_priors, settings, threads)
     except DataFailure as failure:
         part = files.partial_directory(out_dir)
         write_status_json(part / STATUS_FILE, record("reconstruct", failure))
         files.move_into_place(part, out_dir)
 
 
-def _reconstruct(render_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
-    frames, images = read_rendered_images(render_dir)  # checked before any work
-    poses = true_poses(frames)  # the navigation priors are simulated from them; the report scores against them
+def _reconstruct(mission_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
+    mission, images = read_mission(mission_dir)  # checked before any work
+    prior_positions, prior_sigma_m = mission_navigation(mission)
+    if use_priors and prior_positions is None:
+        raise BadInput(
+            f"{mission_dir}: a reconstruction with priors asked for, but the mission set has no navigation priors "
+            f"(its imaging condition {mission.get('imaging')!r} has prior_sigma_m 0)"
+        )
     attempts = []
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     for seed in range(MAX_MAPPER_SEEDS):
         result = reconstruct.reconstruct_images(
-            images, Intrinsics(**frames["intrinsics"]), part / "work", true_body_to_camera=poses,
-            intrinsics_mode=settings["intrinsics"], use_priors=use_priors,
-            camera_position_sigma_m=settings["camera_position_sigma_m"], tie_point_sigma_px=settings["tie_point_sigma_px"],
-            prior_seed=settings["prior_seed"], num_threads=threads, seed=seed,
+            images, Intrinsics(**mission["intrinsics"]), part / "work", prior_positions=prior_positions if use_priors else None,
+            intrinsics_mode=settings["intrinsics"], camera_position_sigma_m=prior_sigma_m if use_priors else 1.0,
+            tie_point_sigma_px=settings["tie_point_sigma_px"], num_threads=threads, seed=seed,
             features=reconstruct.FeatureOptions(
                 min_pose_inliers=settings["min_pose_inliers"], min_pose_inlier_ratio=settings["min_pose_inlier_ratio"],
             ),
@@ -209,7 +214,7 @@ def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_j
     log.info("registration and quality: %s", summary)
 
 
-def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dict, out_npz) -> None:
+def refine_stage(registration_npz, reconstruction_dir, mission_dir, settings: dict, out_npz) -> None:
     """The photometric refinement of one reconstruction (``refine.refine_by_pure_samples``), from images and cloud alone.
 
     The light it holds fixed, and the albedo and k it starts from, are the
@@ -221,7 +226,7 @@ def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dic
     cannot be scored, and is passed on (``status: failed``) unrefined.
     """
     try:
-        pure = _refine(registration_npz, reconstruction_dir, render_dir, settings)
+        pure = _refine(registration_npz, reconstruction_dir, mission_dir, settings)
     except DataFailure as failure:
         write_failed_npz(out_npz, record("refine_cloud", failure))
         return
@@ -229,13 +234,15 @@ def refine_stage(registration_npz, reconstruction_dir, render_dir, settings: dic
     log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
 
 
-def _refine(registration_npz, reconstruction_dir, render_dir, settings: dict) -> refine.PureSampleCloud:
+def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -> refine.PureSampleCloud:
     with np.load(registration_npz) as data:
         check_npz(data, registration_npz)
         oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
     recon = read_reconstruction(reconstruction_dir)
-    _, images = read_rendered_images(render_dir)
+    mission, images = read_mission(mission_dir)
     poses = recon.body_to_camera()
+    # Images with a sensor model: the statistical purity test of that sensor; noise-free ones: the relative tolerance.
+    purity_test = PurityTest(sensor_from_config(mission["sensor"])) if mission.get("sensor") else settings["refine_purity_tolerance"]
     surface = cloud_lib.poisson_surface(oriented)
     obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
     require_cloud_observations(obs, settings, "the cloud")
@@ -245,7 +252,7 @@ def _refine(registration_npz, reconstruction_dir, render_dir, settings: dict) ->
     pure = refine.refine_by_pure_samples(
         surface, poses, recon.intrinsics(), images, start.light_dir_cam, albedo, minnaert_k,
         n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"], offset_steps=settings["refine_offset_steps"],
-        purity_tolerance=settings["refine_purity_tolerance"], max_residual=settings["refine_max_residual"],
+        purity_tolerance=purity_test, max_residual=settings["refine_max_residual"],
         min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
         axis=refine.spin_axis(list(recon.camera_centres().values())),
     )
@@ -293,42 +300,39 @@ def plausible_points(result: estimation.FitResult) -> estimation.FitResult:
     )
 
 
-# ---------------------------------------------------------------- fit_cloud: the estimators on the cloud, scored
+# ---------------------------------------------------------------- estimate_cloud: the estimators on the cloud; score_cloud: scored
 
 
 @dataclass(frozen=True)
 class CloudStageInputs:
-    """The files :func:`fit_cloud_stage` reads: the outputs of ``register_stage`` (``registration_npz``,
-    ``registration_json``), ``reconstruct_stage`` (``reconstruction_dir``) and ``refine_stage`` (``refined_npz``),
-    the rendered set (``render_dir``) and the shape model (``shape_npz``)."""
+    """The files the estimates on a cloud come from, none of them truth: the outputs of ``register_stage``
+    (``registration_npz``, ``registration_json``), ``reconstruct_stage`` (``reconstruction_dir``) and
+    ``refine_stage`` (``refined_npz``), and the mission set (``mission_dir``)."""
 
     registration_npz: str | Path
     registration_json: str | Path
     reconstruction_dir: str | Path
-    render_dir: str | Path
-    shape_npz: str | Path
+    mission_dir: str | Path
     refined_npz: str | Path
 
 
 @dataclass(frozen=True)
 class CloudStage:
-    """The inputs of :func:`fit_cloud_stage`, read and checked.
+    """The inputs of :func:`estimate_cloud_stage` and :func:`score_cloud_stage`, read and checked.
 
     ``registration``: the registration's summary; ``report``: the
     reconstruction's; ``oriented``: the cloud in its own frame and
-    ``transform`` from it to the body frame; ``frames`` and ``images``: the
-    rendered set; ``obs``: the cloud's samples of the images; ``pure``: the
+    ``transform`` from it to the body frame; ``mission`` and ``images``: the
+    mission set; ``obs``: the cloud's samples of the images; ``pure``: the
     refined cloud and its pure samples.
     """
 
-    render_dir: str | Path
     registration: dict
     report: dict
     recon: reconstruct.SparseReconstruction
-    shape: dict
     oriented: cloud_lib.OrientedCloud
     transform: np.ndarray
-    frames: dict
+    mission: dict
     images: object
     obs: estimation.Observations
     pure: refine.PureSampleCloud
@@ -341,18 +345,17 @@ def read_cloud_stage(inputs: CloudStageInputs, settings: dict) -> CloudStage:
     with np.load(inputs.refined_npz) as data:
         check_npz(data, inputs.refined_npz)
     recon = read_reconstruction(inputs.reconstruction_dir)
-    shape = load_shape_npz(inputs.shape_npz)
     with np.load(inputs.registration_npz) as data:
         check_npz(data, inputs.registration_npz)
         oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
         transform = data["transform"]
-    frames, images = read_rendered_images(inputs.render_dir)
+    mission, images = read_mission(inputs.mission_dir)
     obs, _ = cloud_observations_of(oriented, recon, images, settings)
     require_cloud_observations(obs, settings, f"the reconstruction ({recon.report.n_images_registered} images, {len(oriented.points)} cloud points)")
     report = json.loads((Path(inputs.reconstruction_dir) / "report.json").read_text())
     # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
     pure = refine.PureSampleCloud.load(inputs.refined_npz)
-    return CloudStage(inputs.render_dir, registration, report, recon, shape, oriented, transform, frames, images, obs, pure)
+    return CloudStage(registration, report, recon, oriented, transform, mission, images, obs, pure)
 
 
 @dataclass(frozen=True)
@@ -374,11 +377,32 @@ class CloudTruth:
         return metrics.Truth(light_dir_cam=light_dir_cam, albedo=self.albedo, minnaert_k=self.minnaert_k)
 
 
-def truth_at_points(stage: CloudStage, points, query: mesh.SurfaceQuery) -> CloudTruth:
-    """The truth (``evaluation.truth``) at cloud-frame ``points``, through the registration; ``query``: the shape model."""
-    points_body = register.transform_points(stage.transform, points)
-    surface_body, facets = query.closest(points_body)
-    albedo, minnaert_k, normals, light = truth_for_facets(facets, stage.shape, stage.frames, stage.render_dir)
+@dataclass(frozen=True)
+class ScoringTruth:
+    """What the scoring stage reads besides the estimates: the shape model (``shape``, and ``query`` on it), the
+    mission set's truth file (``truth``: true poses and light), the rendered set's record (``frames``) and its
+    directory (``render_dir``, with the surface maps where it has them)."""
+
+    shape: dict
+    query: mesh.SurfaceQuery
+    truth: dict
+    frames: dict
+    render_dir: str | Path
+
+
+def read_scoring_truth(shape_npz, truth_json, render_dir) -> ScoringTruth:
+    """The truth one set is scored against; raises the recorded :class:`DataFailure` of a set whose world stage failed."""
+    shape = load_shape_npz(shape_npz)
+    return ScoringTruth(
+        shape, register.SurfaceQuery(shape["vertices_m"], shape["faces"]), read_truth(truth_json), rendered_truth(render_dir), render_dir,
+    )
+
+
+def truth_at_points(scoring: ScoringTruth, transform, points) -> CloudTruth:
+    """The truth (``evaluation.truth``) at cloud-frame ``points``, through the registration ``transform`` (cloud to body frame)."""
+    points_body = register.transform_points(transform, points)
+    surface_body, facets = scoring.query.closest(points_body)
+    albedo, minnaert_k, normals, light = truth_for_facets(facets, scoring.shape, scoring.frames, scoring.render_dir)
     return CloudTruth(points_body, surface_body, facets, albedo, minnaert_k, normals, light)
 
 
@@ -416,7 +440,9 @@ def estimate_after_refinement(stage: CloudStage, method: str, known_k: float) ->
     return after, joint, refit_seconds
 
 
-def refinement_scores(set_id: str, priors: str, method: str, stage: CloudStage, fits: CloudFits, truth: CloudTruth, truth_refined: CloudTruth) -> tuple[dict, dict]:
+def refinement_scores(
+    set_id: str, priors: str, method: str, stage: CloudStage, fits: CloudFits, scoring: ScoringTruth, truth: CloudTruth, truth_refined: CloudTruth,
+) -> tuple[dict, dict]:
     """The row's scores of the fits after refinement, and the per-point errors before and after (the errors file's arrays).
 
     ``truth`` and ``truth_refined``: the truth at the cloud's and the refined
@@ -425,7 +451,7 @@ def refinement_scores(set_id: str, priors: str, method: str, stage: CloudStage, 
     """
     before, after, joint, pure, transform = fits.before, fits.after, fits.joint, stage.pure, stage.transform
     light_true = truth.light_dir_cam
-    spin_axis_cam = true_poses(stage.frames)[0, :3, :3] @ [0.0, 0.0, 1.0]
+    spin_axis_cam = true_poses(scoring.truth)[0, :3, :3] @ [0.0, 0.0, 1.0]
     scores = {}
     after_row = metrics.summary_row(set_id, after, truth_refined.scoring(light_true))
     normals_before = quality.normal_errors_deg(mesh.transform_normals(transform, stage.oriented.normals), truth.normals)
@@ -469,7 +495,7 @@ def refinement_scores(set_id: str, priors: str, method: str, stage: CloudStage, 
 ORACLE_COLUMNS = ("light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse")
 
 
-def oracle_rows(method: str, stage: CloudStage, truth: CloudTruth, settings: dict, known_k: float) -> dict:
+def oracle_rows(method: str, stage: CloudStage, scoring: ScoringTruth, truth: CloudTruth, settings: dict, known_k: float) -> dict:
     """Where the cloud's error comes from: the same estimator with the truth put in, one part at a time.
 
     ``truth``: at each registered point, its closest point on the true
@@ -483,19 +509,19 @@ def oracle_rows(method: str, stage: CloudStage, truth: CloudTruth, settings: dic
     against the pure pixels of Table 1. All need the registration
     (``stage.transform``: cloud frame to body frame).
     """
-    oriented, recon, frames, images, surface_body = stage.oriented, stage.recon, stage.frames, stage.images, truth.surface_body
+    oriented, recon, images, surface_body = stage.oriented, stage.recon, stage.images, truth.surface_body
     scoring_truth = truth.scoring(truth.light_dir_cam)
     poses = recon.body_to_camera()
-    all_true_poses = true_poses(frames)
+    all_true_poses = true_poses(scoring.truth)
     true_cameras = {index: all_true_poses[index] for index in poses}
     body_to_cloud = np.linalg.inv(stage.transform)
-    normals_body = stage.shape["normals"][truth.facets]
+    normals_body = scoring.shape["normals"][truth.facets]
     row = {}
     # (name, points in the frame of the cameras, those cameras, their intrinsics, body to that frame)
     for name, points, cameras, intrinsics, body_to_frame in (
         ("true_normals", oriented.points, poses, recon.intrinsics(), body_to_cloud),
         ("true_surface", register.transform_points(body_to_cloud, surface_body), poses, recon.intrinsics(), body_to_cloud),
-        ("true_cameras", surface_body, true_cameras, Intrinsics(**frames["intrinsics"]), np.eye(4)),
+        ("true_cameras", surface_body, true_cameras, Intrinsics(**stage.mission["intrinsics"]), np.eye(4)),
     ):
         swapped = cloud_lib.OrientedCloud(points, mesh.transform_normals(body_to_frame, normals_body), oriented.track_length)
         obs, _ = cloud_lib.cloud_observations(
@@ -513,22 +539,78 @@ def oracle_rows(method: str, stage: CloudStage, truth: CloudTruth, settings: dic
 K_SPREAD_WARNING = 0.015
 
 
-def fit_cloud_stage(inputs: CloudStageInputs, method: str, set_id: str, priors: str, settings: dict, out_json, out_npz) -> None:
-    """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``); scored against the shape model.
+FIT_FIELDS = tuple(field.name for field in fields(estimation.FitResult))
+#: The fits :func:`estimate_cloud_stage` writes (:class:`CloudFits`).
+FIT_STAGES = ("before", "after", "joint")
 
-    Writes the set's row of Table 2 (``out_json``) and its per-point errors
-    (``out_npz``). A set that failed here or before (reconstruction,
-    registration, refinement) gets a row with its ``status`` (the reason),
-    what is known of its reconstruction and registration, and no estimates.
+
+def fit_arrays(result: estimation.FitResult, prefix: str) -> dict:
+    """A fit as arrays for one .npz, its fields prefixed (``before_light_dir_cam``, ...)."""
+    return {f"{prefix}_{name}": getattr(result, name) for name in FIT_FIELDS}
+
+
+def fit_from_arrays(data, prefix: str) -> estimation.FitResult:
+    """The inverse of :func:`fit_arrays`."""
+    values = {name: data[f"{prefix}_{name}"] for name in FIT_FIELDS}
+    for name, kind in (("method", str), ("solver", str), ("message", str), ("n_points_fitted", int), ("n_obs", int), ("n_iterations", int), ("nfev", int),
+                       ("success", bool), ("cost", float), ("fit_seconds", float)):
+        values[name] = kind(values[name])
+    return estimation.FitResult(**values)
+
+
+def estimate_cloud_stage(inputs: CloudStageInputs, method: str, settings: dict, out_npz) -> None:
+    """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``): from the mission set alone.
+
+    Writes the fits of :class:`CloudFits` (``fit_arrays``), the seconds of the
+    fits after refinement and the k Iwano's baseline was given: the
+    refinement's one k for the body, estimated from the images (never the
+    true k). A set that failed here or before gets a file with its status.
     """
     try:
-        row, errors = _fit_cloud(inputs, method, set_id, priors, settings)
+        stage = read_cloud_stage(inputs, settings)
+        known_k = float(stage.pure.refined_minnaert_k)  # the workflow's own k for the body (refine_stage), for Iwano's baseline
+        before = estimate_before_refinement(stage, method, known_k)
+        after, joint, refit_seconds = estimate_after_refinement(stage, method, known_k)
     except DataFailure as failure:
-        reason = record("fit_cloud", failure)
+        write_failed_npz(out_npz, record("estimate_cloud", failure))
+        return
+    files.savez(
+        out_npz, **fit_arrays(before, "before"), **fit_arrays(after, "after"), **fit_arrays(joint, "joint"),
+        refit_seconds=refit_seconds, known_k=known_k,
+    )
+    log.info("%s: light %s before refinement, %s after", method, np.round(before.light_dir_cam, 6).tolist(), np.round(after.light_dir_cam, 6).tolist())
+
+
+@dataclass(frozen=True)
+class ScoringInputs:
+    """The files the scoring stage reads besides :class:`CloudStageInputs`: the estimates (``estimate_cloud_stage``),
+    the shape model, the mission set's truth file and the rendered set (truth)."""
+
+    estimates_npz: str | Path
+    shape_npz: str | Path
+    truth_json: str | Path
+    render_dir: str | Path
+
+
+def score_cloud_stage(
+    inputs: CloudStageInputs, scoring_inputs: ScoringInputs, method: str, set_id: str, imaging: str, priors: str, settings: dict, out_json, out_npz,
+) -> None:
+    """The estimates on one cloud scored against the truth: the set's row of Table 2 (``out_json``) and its per-point errors (``out_npz``).
+
+    A set that failed here or before (reconstruction, registration,
+    refinement, estimates) gets a row with its ``status`` (the reason), what
+    is known of its reconstruction and registration, and no estimates.
+    """
+    try:
+        row, errors = _score_cloud(inputs, scoring_inputs, method, set_id, priors, settings)
+    except DataFailure as failure:
+        reason = record("score_cloud", failure)
         row = _failed_row(inputs, method, set_id, priors, reason)
+        row["imaging"] = imaging
         write_failed_npz(out_npz, reason)
         files.write_json(out_json, row)
         return
+    row["imaging"] = imaging
     files.write_json(out_json, row)
     files.savez(out_npz, **errors)
     log.info("table 2 row: %s", json.dumps(row))
@@ -546,37 +628,48 @@ def _failed_row(inputs: CloudStageInputs, method: str, set_id: str, priors: str,
     return row
 
 
-def _fit_cloud(inputs: CloudStageInputs, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
-    """The set's row and its per-point errors: the inputs read, the truth looked up, the estimates made and scored."""
+def _score_cloud(inputs: CloudStageInputs, scoring_inputs: ScoringInputs, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
+    """The set's row and its per-point errors: the estimates read, the truth looked up at the points, the scores."""
+    with np.load(scoring_inputs.estimates_npz) as data:
+        check_npz(data, scoring_inputs.estimates_npz)
+        before, after, joint = (fit_from_arrays(data, prefix) for prefix in FIT_STAGES)
+        refit_seconds, known_k = float(data["refit_seconds"]), float(data["known_k"])
     stage = read_cloud_stage(inputs, settings)
-    query = register.SurfaceQuery(stage.shape["vertices_m"], stage.shape["faces"])
-    truth = truth_at_points(stage, stage.oriented.points, query)
-    known_k = float(np.median(truth.minnaert_k))  # Iwano's baseline is given k
-    before = estimate_before_refinement(stage, method, known_k)
-    # Scored at once: a fit of no point fails the set here, before the fits after refinement are made.
+    scoring = read_scoring_truth(scoring_inputs.shape_npz, scoring_inputs.truth_json, scoring_inputs.render_dir)
+    truth = truth_at_points(scoring, stage.transform, stage.oriented.points)
+    # A fit of no point fails the set here.
     row = metrics.summary_row(set_id, before, truth.scoring(truth.light_dir_cam))
-    fits = CloudFits(before, *estimate_after_refinement(stage, method, known_k))
-    truth_refined = truth_at_points(stage, stage.pure.points, query)
-    scores, errors = refinement_scores(set_id, priors, method, stage, fits, truth, truth_refined)
+    fits = CloudFits(before, after, joint, refit_seconds)
+    truth_refined = truth_at_points(scoring, stage.transform, stage.pure.points)
+    scores, errors = refinement_scores(set_id, priors, method, stage, fits, scoring, truth, truth_refined)
     row.update(scores)
     report = stage.report
     row.update(
         n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"],
-        cam_pos_rms_m=report.get("cam_pos_rms_m"), cam_pos_true_rms_m=report.get("cam_pos_true_rms_m"), prior_overfit=report.get("prior_overfit"),
+        cam_pos_rms_m=report.get("cam_pos_rms_m"), prior_overfit=report.get("prior_overfit"),
     )
+    row.update(quality.camera_errors(stage.recon.body_to_camera(), true_poses(scoring.truth), stage.recon.prior_positions, report["world_frame"]))
     row.update(stage.registration)
     row["status"] = table_status()
-    row.update(oracle_rows(method, stage, truth, settings, known_k))
+    if method == "iwano_linear":
+        row["known_k"] = known_k
+        row["known_k_err"] = known_k - float(np.median(truth.minnaert_k))
+    row.update(oracle_rows(method, stage, scoring, truth, settings, known_k))
     return row, errors
 
 
-TABLE2_LEAD = ["set_id", "priors", "method", "status"]
+TABLE2_LEAD = ["set_id", "imaging", "priors", "method", "status"]
+#: The final estimate of every row: after every stage, the refinement included.
+FINAL_COLUMNS = {"light_dir_err_deg_final": "light_dir_err_deg_refined", "albedo_err_final": "albedo_err_refined", "k_err_final": "k_err_refined"}
 
 
 def write_table2(summary_paths, out_csv, out_markdown) -> None:
     rows = [{"status": OK, **json.loads(Path(path).read_text())} for path in summary_paths]
     table = metrics.without_timings(pd.DataFrame(rows))
-    table = table[TABLE2_LEAD + [c for c in table if c not in TABLE2_LEAD]].sort_values(TABLE2_LEAD[:3], kind="stable")
+    for final, source in FINAL_COLUMNS.items():
+        table[final] = table[source] if source in table else np.nan
+    lead = TABLE2_LEAD + list(FINAL_COLUMNS)
+    table = table[lead + [c for c in table if c not in lead]].sort_values(TABLE2_LEAD[:4], kind="stable")
     files.write_csv(table, out_csv)
     files.write_text(out_markdown, table2_markdown(table))
     log.info("Table 2: %s", status_counts_line(table, "rows"))
@@ -605,8 +698,8 @@ def table2_markdown(table: pd.DataFrame) -> str:
         ("albedo_err", "albedo err", 4), ("albedo_err_refined", "albedo err ref.", 4), ("k_err", "k err", 4),
         ("k_err_refined", "k err ref.", 4), ("normal_err_deg_median", "normal err", 1), ("normal_err_deg_median_refined", "normal err ref.", 1),
     ]
-    for (priors, method), group in table.groupby(["priors", "method"], sort=True):
-        lines += [f"## priors {priors}, {method}", "", status_counts_line(group, keys=("set_id",)), ""]
+    for (imaging, priors, method), group in table.groupby(["imaging", "priors", "method"], sort=True):
+        lines += [f"## imaging {imaging}, priors {priors}, {method}", "", status_counts_line(group, keys=("set_id",)), ""]
         lines += ["| " + " | ".join(title for _, title, _ in columns) + " |", "|" + "---|" * len(columns)]
         for _, row in group.iterrows():
             cells = []
@@ -627,8 +720,8 @@ def error_decomposition_markdown(table: pd.DataFrame) -> list[str]:
     lines = ["## Where the error comes from", "",
              "Median over the registered sets of the absolute errors, with the truth put in one part at a time "
              "(same images, same estimator; `_true_*` columns of table2.csv).", ""]
-    for (priors, method), group in table[table.registration_ok.fillna(False).astype(bool) & (table.status == OK)].groupby(["priors", "method"], sort=True):
-        lines += [f"### priors {priors}, {method}", "", "| | light err (deg) | albedo err | k err |", "|---|---|---|---|"]
+    for (imaging, priors, method), group in table[table.registration_ok.fillna(False).astype(bool) & (table.status == OK)].groupby(["imaging", "priors", "method"], sort=True):
+        lines += [f"### imaging {imaging}, priors {priors}, {method}", "", "| | light err (deg) | albedo err | k err |", "|---|---|---|---|"]
         for suffix, title in metrics.TABLE2_STAGES:
             cells = [f"{group[f'{key}{suffix}'].abs().median():.4g}" for key in ("light_dir_err_deg", "albedo_err", "k_err")]
             lines.append(f"| {title} | " + " | ".join(cells) + " |")

@@ -152,12 +152,14 @@ def default_occlusion_tolerance(points: np.ndarray) -> float:
     return 0.02 * float(np.ptp(points, axis=0).max())
 
 
-def sample_images(points, image_index, body_to_camera: dict, intrinsics: Intrinsics, images: list[np.ndarray], purity_tolerance: float | None = None):
+def sample_images(points, image_index, body_to_camera: dict, intrinsics: Intrinsics, images: list[np.ndarray], purity_tolerance=None):
     """Each point sampled in its image: (brightness, point in the camera frame, projection inside the image).
 
     ``points`` (n, 3) in the cameras' frame, ``image_index`` (n,) the image of
     each row. Bilinear samples, or with ``purity_tolerance`` only those
-    ``sample_pure`` finds pure (0 elsewhere, and outside the image).
+    ``sample_pure`` finds pure (0 elsewhere, and outside the image); a
+    callable ``purity_tolerance(image, uv)`` is another purity test with
+    ``sample_pure``'s contract (``purity.PurityTest``: the sensor's).
     """
     poses = poses_of(body_to_camera, image_index)
     points_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], points) + poses[:, :3, 3]
@@ -168,6 +170,8 @@ def sample_images(points, image_index, body_to_camera: dict, intrinsics: Intrins
         rows = np.flatnonzero((image_index == image) & inside)
         if purity_tolerance is None:
             brightness[rows] = sample_bilinear(images[image], uv[rows])
+        elif callable(purity_tolerance):
+            brightness[rows] = purity_tolerance(images[image], uv[rows])
         else:
             brightness[rows] = sample_pure(images[image], uv[rows], purity_tolerance)
     return brightness, points_cam, inside

@@ -135,3 +135,23 @@ def sample_pure(image: np.ndarray, uv: np.ndarray, variance=None, significance: 
     if isinstance(variance, SensorModel):
         pure &= ~np.any(saturated(support, variance), axis=0)
     return np.where(pure, mean, 0.0)
+
+
+class PurityTest:
+    """The statistical purity test of one sensor as a callable ``test(image, uv)``: ``sample_pure`` with its noise model.
+
+    What the refinement and the cloud's sampling take in place of a relative
+    tolerance when the images come with a sensor model. ``sample_variance``
+    is the noise variance of one pure sample (the mean of four pixels) at
+    brightness ``b``, floor included.
+    """
+
+    def __init__(self, sensor: SensorModel, significance: float = DEFAULT_SIGNIFICANCE, relative_floor: float = DEFAULT_RELATIVE_FLOOR):
+        self.sensor, self.significance, self.relative_floor = sensor, float(significance), float(relative_floor)
+
+    def __call__(self, image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        return sample_pure(image, uv, variance=self.sensor, significance=self.significance, relative_floor=self.relative_floor)
+
+    def sample_variance(self, brightness) -> np.ndarray:
+        brightness = np.asarray(brightness, dtype=np.float64)
+        return observation_variance(brightness, self.sensor) / 4.0 + (self.relative_floor * brightness) ** 2

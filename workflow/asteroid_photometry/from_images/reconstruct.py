@@ -25,8 +25,11 @@ Steps (:func:`reconstruct_images`):
    the stated accuracies (:func:`bundle_adjust`), plain least squares
    (no robust loss), intrinsics held or refined as asked.
 5. **Report** (:class:`ReconstructionReport`): images registered, points,
-   reprojection RMS, camera-position residuals against the priors and errors
-   against the truth, and the over-fitting diagnostic.
+   reprojection RMS, camera-position residuals against the priors and the
+   over-fitting diagnostic. Nothing here reads the true cameras: the priors
+   come with the images (the mission's navigation file), and the cameras
+   are scored against the truth by the scoring stage
+   (``evaluation.quality.camera_errors``).
 
 Weighting. Photogrammetry packages such as Metashape minimise
 ``sum (r_px / sigma_tie_px)^2 + sum |c - c_prior|^2 / sigma_cam_m^2`` (tie
@@ -207,13 +210,6 @@ def write_images(images, names, image_dir, curve: str = DEFAULT_TONE_CURVE) -> f
 # --------------------------------------------------------------------------------------------
 # Navigation priors and alignment
 # --------------------------------------------------------------------------------------------
-
-
-def simulate_navigation_positions(body_to_camera: np.ndarray, sigma_m: float, seed: int = 0) -> np.ndarray:
-    """Simulated navigation solution: true camera centres in the body frame plus N(0, sigma_m^2) per axis, (n, 3) metres."""
-    true_centres = camera_centres_body(np.asarray(body_to_camera, dtype=float))
-    rng = np.random.default_rng(seed)
-    return true_centres + rng.normal(0.0, sigma_m, size=true_centres.shape)
 
 
 def prior_covariance(camera_position_sigma_m: float, tie_point_sigma_px: float) -> np.ndarray:
@@ -404,12 +400,9 @@ class ReconstructionReport:
 
     Camera-position quantities are RMS over the registered images of the 3-D
     distance between camera centres (metres). ``cam_pos_rms_m``, the residual
-    against the priors, exists only with priors (``None`` otherwise);
-    ``cam_pos_true_rms_m`` compares with the true centres directly in the body
-    frame when priors were used, after a least-squares similarity alignment
-    otherwise (then ``alignment_scale`` is the scale of that alignment);
-    ``cam_rot_true_rms_deg`` is the RMS angle between estimated and true
-    camera orientations in the same frame. See :func:`pose_report`.
+    against the priors, exists only with priors (``None`` otherwise). See
+    :func:`pose_report`. The errors against the true cameras are the scoring
+    stage's (``evaluation.quality.camera_errors``).
     """
 
     n_images: int
@@ -427,10 +420,6 @@ class ReconstructionReport:
     cam_pos_rms_ratio: float | None
     overfit_ratio: float | None
     prior_overfit: bool | None
-    prior_pos_true_rms_m: float | None
-    cam_pos_true_rms_m: float
-    cam_rot_true_rms_deg: float
-    alignment_scale: float | None
     intrinsics: str
     focal_px: float
     seconds: float
@@ -444,56 +433,34 @@ class ReconstructionReport:
 
 def pose_report(
     body_to_camera: np.ndarray,
-    true_body_to_camera: np.ndarray,
     prior_centres: np.ndarray | None,
     camera_position_sigma_m: float | None,
     overfit_ratio: float = DEFAULT_OVERFIT_RATIO,
 ) -> dict:
-    """Camera entries of :class:`ReconstructionReport` for (n, 4, 4) corresponding poses.
+    """The prior entries of :class:`ReconstructionReport` for (n, 4, 4) poses and their (n, 3) priors, both in the body frame.
 
-    ``body_to_camera`` are the model's poses: from the body frame when
-    ``prior_centres`` (n, 3) is given (priors were used), from any similarity
-    of it otherwise; then they are compared with the truth after the
-    least-squares similarity that maps their camera centres onto the true ones.
-    Rotation errors are the angles of ``R_est R_true^T`` (degrees).
+    All ``None`` without priors (``prior_centres`` None): the model then lives
+    in a similarity frame of its own, and nothing here knows which.
     """
-    body_to_camera = np.asarray(body_to_camera, dtype=float).reshape(-1, 4, 4)
-    true_body_to_camera = np.asarray(true_body_to_camera, dtype=float).reshape(-1, 4, 4)
-    centres, true_centres = camera_centres_body(body_to_camera), camera_centres_body(true_body_to_camera)
-    rotations = body_to_camera[:, :3, :3]
+    entries = dict.fromkeys(("cam_pos_rms_m", "cam_pos_rms_expected_m", "cam_pos_rms_ratio", "overfit_ratio", "prior_overfit"))
+    if prior_centres is None:
+        return entries
+    centres = camera_centres_body(np.asarray(body_to_camera, dtype=float).reshape(-1, 4, 4))
+    prior_centres = np.asarray(prior_centres, dtype=float).reshape(-1, 3)
     n = len(centres)
-    entries = {key: None for key in (
-        "cam_pos_rms_m", "cam_pos_rms_expected_m", "cam_pos_rms_ratio", "overfit_ratio", "prior_overfit",
-        "prior_pos_true_rms_m", "alignment_scale",
-    )}
-    if prior_centres is not None:
-        prior_centres = np.asarray(prior_centres, dtype=float).reshape(-1, 3)
-        residual_rms = rms(centres - prior_centres)
-        expected = float(camera_position_sigma_m * np.sqrt(max(3.0 - 7.0 / n, 0.0))) if n else float("nan")
-        ratio = residual_rms / expected if expected > 0 else float("nan")
-        entries.update(
-            cam_pos_rms_m=residual_rms, cam_pos_rms_expected_m=expected, cam_pos_rms_ratio=ratio,
-            overfit_ratio=float(overfit_ratio), prior_overfit=bool(ratio < overfit_ratio),
-            prior_pos_true_rms_m=rms(prior_centres - true_centres),
-        )
-    elif n >= 3:
-        scale, rotation, translation = similarity_alignment(centres, true_centres)
-        centres = scale * centres @ rotation.T + translation
-        rotations = rotations @ rotation.T  # body from model frame is `rotation`: R_cam_from_body = R_cam_from_model R^T
-        entries["alignment_scale"] = scale
-    else:
-        centres = np.full_like(centres, np.nan)
-        rotations = np.full_like(rotations, np.nan)
-    relative = np.einsum("nij,nkj->nik", rotations, true_body_to_camera[:, :3, :3])
-    angles_deg = np.degrees(np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
-    entries["cam_pos_true_rms_m"] = rms(centres - true_centres)
-    entries["cam_rot_true_rms_deg"] = float(np.sqrt(np.mean(angles_deg**2))) if n else float("nan")
+    residual_rms = rms(centres - prior_centres)
+    expected = float(camera_position_sigma_m * np.sqrt(max(3.0 - 7.0 / n, 0.0))) if n else float("nan")
+    ratio = residual_rms / expected if expected > 0 else float("nan")
+    entries.update(
+        cam_pos_rms_m=residual_rms, cam_pos_rms_expected_m=expected, cam_pos_rms_ratio=ratio,
+        overfit_ratio=float(overfit_ratio), prior_overfit=bool(ratio < overfit_ratio),
+    )
     return entries
 
 
 def model_report(
     model,
-    true_body_to_camera: np.ndarray,
+    n_images: int,
     prior_positions: np.ndarray | None = None,
     *,
     camera_position_sigma_m: float | None = None,
@@ -506,23 +473,21 @@ def model_report(
 ) -> ReconstructionReport:
     """The report of a pycolmap model whose images are named ``image_NNN`` (:func:`image_name`).
 
-    ``true_body_to_camera`` (n_images, 4, 4) and ``prior_positions``
-    (n_images, 3; ``None`` when no priors were used) are indexed by set index.
+    ``n_images``: the images of the set; ``prior_positions`` (n_images, 3;
+    ``None`` when no priors were used) are indexed by set index.
     """
-    true_body_to_camera = np.asarray(true_body_to_camera, dtype=float)
     use_priors = prior_positions is not None
     registered = sorted((image_index(model.image(image_id).name), image_id) for image_id in model.reg_image_ids())
     registered_indices = np.array([index for index, _ in registered], dtype=int)
     estimated_poses = np.array([pose_matrix(model.image(image_id).cam_from_world()) for _, image_id in registered]).reshape(-1, 4, 4)
     poses = pose_report(
-        estimated_poses, true_body_to_camera[registered_indices],
-        np.asarray(prior_positions, dtype=float)[registered_indices] if use_priors else None,
+        estimated_poses, np.asarray(prior_positions, dtype=float)[registered_indices] if use_priors else None,
         camera_position_sigma_m, overfit_ratio,
     )
     residuals = reprojection_residuals(model)
     camera = next(iter(model.cameras.values()))
     return ReconstructionReport(
-        n_images=len(true_body_to_camera),
+        n_images=int(n_images),
         n_images_registered=int(model.num_reg_images()),
         n_points3d=int(model.num_points3D()),
         n_observations=int(len(residuals)),
@@ -816,12 +781,10 @@ def reconstruct_images(
     intrinsics: Intrinsics,
     work_dir,
     *,
-    true_body_to_camera: np.ndarray,
+    prior_positions: np.ndarray | None = None,
     intrinsics_mode: str = "fixed",
-    use_priors: bool = True,
     camera_position_sigma_m: float = 1.0,
     tie_point_sigma_px: float = 1.0,
-    prior_seed: int = 0,
     tone_curve: str = DEFAULT_TONE_CURVE,
     features: FeatureOptions | None = None,
     overfit_ratio: float = DEFAULT_OVERFIT_RATIO,
@@ -832,9 +795,9 @@ def reconstruct_images(
 
     ``work_dir`` receives the 8-bit images (``images/``), the COLMAP database
     (``database.db``) and the mapper's models (``mapper/``), each replaced if
-    present. ``true_body_to_camera`` (n, 4, 4) are the
-    true poses: their camera centres plus noise of ``camera_position_sigma_m``
-    (seed ``prior_seed``) are the navigation priors, and they score the result.
+    present. ``prior_positions`` (n, 3), the navigation solution's camera
+    centres in the body frame (metres), accurate to ``camera_position_sigma_m``
+    per axis, are the pose priors; ``None`` reconstructs without priors.
     ``intrinsics_mode`` is ``"fixed"`` (the known intrinsics, never refined) or
     ``"refine"`` (focal lengths refined in the final bundle adjustment).
     ``num_threads`` is for feature extraction and matching (-1: all cores,
@@ -850,9 +813,11 @@ def reconstruct_images(
 
     if intrinsics_mode not in ("fixed", "refine"):
         raise ValueError(f"intrinsics must be 'fixed' or 'refine', got {intrinsics_mode!r}")
-    true_body_to_camera = np.asarray(true_body_to_camera, dtype=float)
-    if len(true_body_to_camera) != len(images):
-        raise ValueError(f"{len(images)} images but {len(true_body_to_camera)} poses")
+    use_priors = prior_positions is not None
+    if use_priors:
+        prior_positions = np.asarray(prior_positions, dtype=float)
+        if prior_positions.shape != (len(images), 3):
+            raise ValueError(f"{len(images)} images but prior positions of shape {prior_positions.shape}; expected ({len(images)}, 3)")
     features = FeatureOptions() if features is None else features
     started = time.perf_counter()
     stage_seconds = {}
@@ -867,7 +832,7 @@ def reconstruct_images(
     _extract_features(workspace, names, intrinsics, options["extraction"])
     stage_seconds["features"] = time.perf_counter() - tick
 
-    prior_centres = simulate_navigation_positions(true_body_to_camera, camera_position_sigma_m, prior_seed) if use_priors else None
+    prior_centres = prior_positions
     n_keypoints = _keypoints_and_priors(workspace.database_path, prior_centres, camera_position_sigma_m, tie_point_sigma_px)
 
     tick = time.perf_counter()
@@ -887,11 +852,11 @@ def reconstruct_images(
     stage_seconds["final_bundle_adjustment"] = time.perf_counter() - tick
 
     report = model_report(
-        model, true_body_to_camera, prior_centres, camera_position_sigma_m=camera_position_sigma_m,
+        model, len(images), prior_centres, camera_position_sigma_m=camera_position_sigma_m,
         tie_point_sigma_px=tie_point_sigma_px, intrinsics_mode=intrinsics_mode, overfit_ratio=overfit_ratio,
         seconds=time.perf_counter() - started, stage_seconds=stage_seconds,
         settings={
-            "tone_curve": tone_curve, "reference_brightness": reference, "prior_seed": int(prior_seed), "seed": int(seed),
+            "tone_curve": tone_curve, "reference_brightness": reference, "seed": int(seed),
             "features": asdict(features), "n_models": len(models), "n_verified_pairs": int(n_verified_pairs),
             "median_keypoints": int(np.median(list(n_keypoints.values()))),
         },

@@ -54,6 +54,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2 as chi2_law
 
 from asteroid_photometry.core import files
 from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, Observations
@@ -210,7 +211,7 @@ class PureSampleCloud:
     observations: Observations  # their pure samples (camera frames)
     image_index: np.ndarray  # (n_obs,) the image of each observation
     offset_px: np.ndarray  # (M,) chosen offset along the surface normal, in pixels
-    residual: np.ndarray  # (M,) relative RMS residual of the one-facet fit
+    residual: np.ndarray  # (M,) relative RMS residual of the one-facet fit (with a sensor: over its noise-limited value)
     n_candidates: int
     light_dir_cam: np.ndarray  # the light the normals were fitted under
     refined_light_dir_cam: np.ndarray  # the light fitted to the pure samples with one k for the body (estimate.fit_pooled_k)
@@ -239,8 +240,15 @@ class PureSampleCloud:
             )
 
 
-def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg, axis):
-    """One offset: pure samples of every candidate and the one-facet fit to them; (relative residual, fitted normals)."""
+def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg, axis, max_residual):
+    """One offset: pure samples of every candidate and the one-facet fit to them; (score, fitted normals).
+
+    The score is the relative RMS residual, or with a statistical purity test
+    (``purity.PurityTest``) that residual over the largest the sensor's
+    noise explains (:func:`noise_limited_residual`); a candidate is accepted
+    at a score of ``max_residual`` or less, resp. 1 or less.
+    """
+    statistical = callable(purity_tolerance)
     brightness, points_cam, inside = cloud_lib.sample_images(points[pair_point], pair_image, poses, intrinsics, images, purity_tolerance)
     keep = inside & (brightness > 0)
     counts = np.bincount(pair_point[keep], minlength=len(points))
@@ -251,20 +259,52 @@ def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, 
     view_cam = -points_cam[keep] / np.linalg.norm(points_cam[keep], axis=1, keepdims=True)
     start_albedo = np.where(enough, albedo, np.nan)
     start_k = np.where(enough, minnaert_k, np.nan)
-    # The samples' own scatter is the purity tolerance: the prior weighs against that, not against the starting misfit.
-    noise_var = (purity_tolerance * np.median(brightness[keep])) ** 2 if keep.any() else 1.0
+    # The samples' own scatter is the purity tolerance (or the sensor's noise): the prior weighs against that, not against the starting misfit.
+    if statistical:
+        noise_var = float(purity_tolerance.sample_variance(np.median(brightness[keep]))) if keep.any() else 1.0
+    else:
+        noise_var = (purity_tolerance * np.median(brightness[keep])) ** 2 if keep.any() else 1.0
     fitted_normals, fitted_albedo, fitted_k, active = refine_points(
         p, rotations, view_cam, brightness[keep], normals, start_albedo, start_k, light_dir_cam,
         n_iterations=30, min_observations=min_observations, normal_prior_deg=normal_prior_deg, fit_albedo_k=True, noise_var=noise_var, axis=axis,
     )
     residual = relative_residuals(p, rotations, view_cam, brightness[keep], fitted_normals, fitted_albedo, fitted_k, light_dir_cam)
+    if statistical:
+        residual = residual / noise_limited_residual(p, brightness[keep], len(points), purity_tolerance, max_residual)
     residual[~active] = np.inf
     return residual, fitted_normals
 
 
+#: Parameters of a one-facet fit (the normal's turn, albedo, k): the residual's degrees of freedom are the samples less these.
+ONE_FACET_PARAMETERS = 3
+#: Probability that a candidate whose samples one facet explains is refused by the noise-limited residual test.
+RESIDUAL_SIGNIFICANCE = 0.01
+
+
+def noise_limited_residual(point_index, brightness, n_points: int, purity_test, floor: float) -> np.ndarray:
+    """Per point, the largest relative RMS residual of a one-facet fit that the sensor's noise explains.
+
+    For ``n`` samples of one facet, ``n * rms^2 / sigma^2`` follows a
+    chi-square law with ``n - 3`` degrees of freedom (``sigma^2``: one pure
+    sample's noise variance at the point's mean brightness,
+    ``purity_test.sample_variance``); the limit is its ``1 -
+    RESIDUAL_SIGNIFICANCE`` quantile, relative to the mean brightness, with
+    ``floor`` (the noise-free setting's ``max_residual``) added in
+    quadrature for the model's own scatter.
+    """
+    counts = np.bincount(point_index, minlength=n_points)
+    mean = np.bincount(point_index, weights=brightness, minlength=n_points) / np.maximum(counts, 1)
+    dof = np.maximum(counts - ONE_FACET_PARAMETERS, 1)
+    quantile = chi2_law.ppf(1.0 - RESIDUAL_SIGNIFICANCE, dof)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative_var = purity_test.sample_variance(mean) / mean**2
+        limit = np.sqrt(relative_var * quantile / np.maximum(counts, 1) + floor**2)
+    return np.where(counts > 0, limit, np.inf)
+
+
 def refine_by_pure_samples(
     surface, poses: dict, intrinsics: Intrinsics, images: list[np.ndarray], light_dir_cam, albedo: float, minnaert_k: float, *,
-    n_candidates: int = 60000, max_offset_px: float = 2.0, offset_steps: int = 11, purity_tolerance: float = 1e-3,
+    n_candidates: int = 60000, max_offset_px: float = 2.0, offset_steps: int = 11, purity_tolerance=1e-3,
     max_residual: float = 1e-3, min_observations: int = 6, min_cos_emission: float = 0.2, normal_prior_deg: float = 30.0, seed: int = 0, axis=None,
 ) -> PureSampleCloud:
     """Points on ``surface`` moved and turned until their samples are pure and one facet explains them (module docstring).
@@ -276,6 +316,11 @@ def refine_by_pure_samples(
     are in pixels (the candidate's footprint in the images that see it), so
     the search is the same in any similarity frame. ``axis``: the spin axis
     the normals turn about (``spin_axis``); None lets them tilt freely.
+    ``purity_tolerance``: the relative tolerance of noise-free images, or a
+    ``purity.PurityTest`` of the images' sensor; then a candidate is
+    accepted when its residual is what that noise explains, with
+    ``max_residual`` added for the model's own scatter
+    (:func:`noise_limited_residual`).
     """
     import open3d as o3d
 
@@ -302,14 +347,15 @@ def refine_by_pure_samples(
         shifted = points + (offset_px * footprint)[:, None] * normals
         residual, fitted_normals = _fit_candidates(
             shifted, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k,
-            purity_tolerance, min_observations, normal_prior_deg, axis,
+            purity_tolerance, min_observations, normal_prior_deg, axis, max_residual,
         )
         better = residual < best_residual
         best_residual[better], best_offset[better], best_normals[better] = residual[better], offset_px, fitted_normals[better]
-    accepted = np.flatnonzero(best_residual <= max_residual)
+    accepted = np.flatnonzero(best_residual <= (1.0 if callable(purity_tolerance) else max_residual))
     log.info(
-        "pure-sample refinement: %d candidates, %d with >= %d pure samples at some offset, %d accepted (relative residual <= %g)",
-        len(points), int(np.isfinite(best_residual).sum()), min_observations, len(accepted), max_residual,
+        "pure-sample refinement: %d candidates, %d with >= %d pure samples at some offset, %d accepted (%s)",
+        len(points), int(np.isfinite(best_residual).sum()), min_observations, len(accepted),
+        "residual within what the sensor's noise explains" if callable(purity_tolerance) else f"relative residual <= {max_residual:g}",
     )
     surface_normals = normals[accepted]
     points = points[accepted] + (best_offset[accepted] * footprint[accepted])[:, None] * surface_normals

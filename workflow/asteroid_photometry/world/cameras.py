@@ -95,6 +95,17 @@ def camera_centres_body(body_to_camera: np.ndarray) -> np.ndarray:
     return -np.einsum("nji,nj->ni", rotation, translation)
 
 
+def simulate_navigation_positions(body_to_camera: np.ndarray, sigma_m: float, seed: int = 0) -> np.ndarray:
+    """A simulated navigation solution: the true camera centres in the body frame plus N(0, sigma_m^2) per axis, (n, 3) metres.
+
+    What a mission knows of where its camera was; the world stage that writes
+    a mission's files draws it from the true poses, nothing downstream does.
+    """
+    true_centres = camera_centres_body(np.asarray(body_to_camera, dtype=float))
+    rng = np.random.default_rng(seed)
+    return true_centres + rng.normal(0.0, sigma_m, size=true_centres.shape)
+
+
 def light_dir_cam(light_angle_deg: float) -> np.ndarray:
     """Unit vector towards the Sun in the camera frame, ``light_angle_deg`` from ``-z`` towards ``+x``."""
     angle = np.radians(light_angle_deg)

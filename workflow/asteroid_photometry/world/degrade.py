@@ -193,7 +193,10 @@ class ImagingCondition:
     - ``view_latitude_deg``: how far the cameras sit from the body's spin
       equator, degrees (0: the paper's equatorial views);
     - ``light_out_of_plane_deg``: the light's angle out of the plane of the
-      views, degrees.
+      views, degrees;
+    - ``surface_map``: the name of an entry of the config's ``surface_maps``
+      the body is rendered with (albedo and k varying over it), or None for
+      the set's one albedo and k.
 
     The last three describe the image set and its reconstruction, not the
     images' degradation; they travel here so that one name says everything
@@ -209,6 +212,7 @@ class ImagingCondition:
     prior_sigma_m: float = 0.0
     view_latitude_deg: float = 0.0
     light_out_of_plane_deg: float = 0.0
+    surface_map: str | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -234,8 +238,10 @@ class ImagingCondition:
         number("prior_sigma_m", 0.0, None)
         number("view_latitude_deg", -90.0, 90.0)
         number("light_out_of_plane_deg", -90.0, 90.0)
-        if self.sensor_level is not None and (not isinstance(self.sensor_level, str) or not self.sensor_level):
-            raise ValueError(f"{where}: sensor_level must be a noise level's name or null, got {self.sensor_level!r}")
+        for key in ("sensor_level", "surface_map"):
+            value = getattr(self, key)
+            if value is not None and (not isinstance(value, str) or not value):
+                raise ValueError(f"{where}: {key} must be a name (of a {'noise level' if key == 'sensor_level' else 'surface map'}) or null, got {value!r}")
 
     @property
     def kernel(self) -> np.ndarray | None:
