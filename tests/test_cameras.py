@@ -59,6 +59,26 @@ def test_light_direction_angle_and_side():
     assert np.allclose(cameras.light_dir_cam(0.0), [0.0, 0.0, -1.0])
 
 
+@pytest.mark.parametrize("angle_deg", [0.0, 10.0, 20.0, -7.5, 35.0])
+def test_light_azimuth_zero_is_the_in_plane_light_bit_for_bit(angle_deg):
+    angle = np.radians(angle_deg)
+    in_plane = np.array([np.sin(angle), 0.0, -np.cos(angle)])
+    for light in (cameras.light_dir_cam(angle_deg), cameras.light_dir_cam(angle_deg, 0.0), cameras.light_dir_cam(angle_deg, azimuth_deg=0)):
+        assert light.tobytes() == in_plane.tobytes()
+
+
+@pytest.mark.parametrize("azimuth_deg", [30.0, 90.0, -90.0, 180.0, 250.0])
+def test_light_azimuth_turns_the_sun_about_the_optical_axis(azimuth_deg):
+    light = cameras.light_dir_cam(20.0, azimuth_deg)
+    assert np.linalg.norm(light) == pytest.approx(1.0)
+    assert np.degrees(np.arccos(-light[2])) == pytest.approx(20.0)  # the phase angle is kept
+    # Measured from +x towards +y (+y is down in the image).
+    assert np.degrees(np.arctan2(light[1], light[0])) % 360.0 == pytest.approx(azimuth_deg % 360.0)
+    assert np.allclose(cameras.light_dir_cam(20.0, azimuth_deg + 360.0), light)
+    if azimuth_deg == 90.0:
+        assert light[1] > 0.3 and abs(light[0]) < 1e-12
+
+
 def test_pixel_rays_invert_projection(geometry):
     u, v = np.array([0.0, 100.5, 511.9]), np.array([3.0, 256.0, 400.25])
     rays = cameras.pixel_rays_cam(geometry.intrinsics, u, v)

@@ -45,8 +45,47 @@ def test_sphere_matches_closed_form(variant, light_deg, albedo, minnaert_k):
     assert np.abs(image - wrong)[interior].mean() > 20 * difference.mean()
 
 
-def test_flat_facets_are_exact_on_pure_pixels_and_images_are_not_mirrored(variant, tmp_path):
-    """An off-axis tetrahedron: pure pixels hold exactly the Minnaert value, where our projection says."""
+@pytest.mark.parametrize("azimuth_deg, minnaert_k", [(60.0, 1.0), (-120.0, 0.8)])
+def test_out_of_plane_light_lights_the_sphere_where_its_azimuth_says(variant, azimuth_deg, minnaert_k):
+    """A Sun turned about the optical axis: the image matches the closed form and its bright side turns with it."""
+    light = cameras.light_dir_cam(20.0, azimuth_deg)
+    assert abs(light[1]) > 0.25  # well out of the camera's x-z plane
+    args = dict(radius_m=100.0, distance_m=5000.0, image_size=96, fov_deg=2.6)
+    spp, albedo = 64, 0.6
+    image = render.render_sphere(**args, albedo=albedo, minnaert_k=minnaert_k, light_dir_cam=light, spp=spp)
+    expected, spread, interior = closed_form_sphere(**args, albedo=albedo, minnaert_k=minnaert_k, light=light)
+    assert interior.sum() > 2000
+    difference = np.abs(image - expected)[interior]
+    z = difference / (spread[interior] / np.sqrt(spp) + 1e-7)
+    assert np.mean(z) < 1.2 and np.percentile(z, 99.9) < 6
+    # The same Sun in the x-z plane, or mirrored across it, gives a clearly different image.
+    for other in (cameras.light_dir_cam(20.0), light * [1.0, -1.0, 1.0]):
+        wrong, _, _ = closed_form_sphere(**args, albedo=albedo, minnaert_k=minnaert_k, light=other)
+        assert np.abs(image - wrong)[interior].mean() > 20 * difference.mean()
+    # The image is mirror-symmetric about the line through its centre along the light's
+    # azimuth, so the brightness centroid lies on it; +y (rows) is down in the image.
+    rows, cols = np.indices(image.shape) + 0.5
+    centre = args["image_size"] / 2
+    u_mean, v_mean = (image * cols).sum() / image.sum() - centre, (image * rows).sum() / image.sum() - centre
+    assert np.hypot(u_mean, v_mean) > 3.0
+    assert np.degrees(np.angle(np.exp(1j * (np.arctan2(v_mean, u_mean) - np.radians(azimuth_deg))))) == pytest.approx(0.0, abs=1.0)
+    if minnaert_k == 1.0:
+        # Lambert: the brightest point is the subsolar point, at the sphere's radius along the light.
+        focal = centre / np.tan(np.radians(args["fov_deg"]) / 2)
+        subsolar = args["radius_m"] * light + [0.0, 0.0, args["distance_m"]]
+        u_sun, v_sun = focal * subsolar[:2] / subsolar[2] + centre
+        top = image >= np.quantile(image[image > 0], 0.99)
+        assert np.hypot(cols[top].mean() - u_sun, rows[top].mean() - v_sun) < 1.0
+        assert abs(v_sun - centre) > 8.0  # off the image's horizontal line through the centre
+
+
+@pytest.mark.parametrize("azimuth_deg", [0.0, 70.0])
+def test_flat_facets_are_exact_on_pure_pixels_and_images_are_not_mirrored(variant, tmp_path, azimuth_deg):
+    """An off-axis tetrahedron: pure pixels hold exactly the Minnaert value, where our projection says.
+
+    Also under a Sun out of the camera's x-z plane (azimuth 70 deg): the
+    renderer and the observations' lit and shadow tests take any light.
+    """
     vertices = np.array([[0.0, 0.0, 0.0], [60.0, 0.0, 0.0], [0.0, 60.0, 0.0], [0.0, 0.0, 60.0]]) + [40.0, 25.0, -30.0]
     faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     tri = vertices[faces]
@@ -54,7 +93,7 @@ def test_flat_facets_are_exact_on_pure_pixels_and_images_are_not_mirrored(varian
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     geometry = cameras.make_imaging_geometry(n_images=3, image_size=128, camera_distance_km=2.0, view_latitude_deg=20.0, body_radius_m=130.0)
-    light = cameras.light_dir_cam(20.0)
+    light = cameras.light_dir_cam(20.0, azimuth_deg)
     albedo, minnaert_k = 0.6, 0.75
     render.render_image_set(vertices, faces, geometry, albedo, minnaert_k, light, spp=8, out_dir=tmp_path)
     images = [render.read_image(tmp_path / f"image_{i:03d}.exr") for i in range(3)]

@@ -4,8 +4,10 @@ The camera and the Sun are fixed; the body turns about its spin axis (+z of
 the body frame) through its centre, ``360 / n_images`` degrees between
 images. The camera sits at ``view_latitude_deg`` above the body's equator,
 ``camera_distance_km`` from the centre, with the projected spin axis pointing
-up in the image. The Sun lies in the camera's x-z plane, ``light_angle_deg``
-from the direction towards the camera (the phase angle), on the +x side.
+up in the image. The Sun lies ``light_angle_deg`` from the direction towards
+the camera (the phase angle); by default in the camera's x-z plane on the +x
+side, and ``light_dir_cam``'s ``azimuth_deg`` turns it about the optical axis
+out of that plane.
 
 Conventions are those of :mod:`asteroid_photometry` (OpenCV camera frame,
 metres, continuous pixel coordinates with the image corner at 0).
@@ -106,10 +108,20 @@ def simulate_navigation_positions(body_to_camera: np.ndarray, sigma_m: float, se
     return true_centres + rng.normal(0.0, sigma_m, size=true_centres.shape)
 
 
-def light_dir_cam(light_angle_deg: float) -> np.ndarray:
-    """Unit vector towards the Sun in the camera frame, ``light_angle_deg`` from ``-z`` towards ``+x``."""
+def light_dir_cam(light_angle_deg: float, azimuth_deg: float = 0.0) -> np.ndarray:
+    """Unit vector towards the Sun in the camera frame, ``light_angle_deg`` from ``-z``.
+
+    ``azimuth_deg`` is the turn about the optical axis from ``+x`` towards
+    ``+y``: 0 puts the Sun in the x-z plane on the +x side (image right), 90
+    on the +y side, which is down in the image (towards the body's southern
+    hemisphere: the spin axis points up). Azimuth 0 is computed exactly as
+    the in-plane light always was, so existing sets keep their bits.
+    """
     angle = np.radians(light_angle_deg)
-    return np.array([np.sin(angle), 0.0, -np.cos(angle)])
+    if azimuth_deg == 0.0:
+        return np.array([np.sin(angle), 0.0, -np.cos(angle)])
+    azimuth = np.radians(azimuth_deg)
+    return np.array([np.sin(angle) * np.cos(azimuth), np.sin(angle) * np.sin(azimuth), -np.cos(angle)])
 
 
 def project(points_cam: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:

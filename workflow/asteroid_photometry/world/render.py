@@ -316,6 +316,7 @@ def render_image_set(
     variant: str = "auto",
     facet_maps_path: Path | None = None,
     bsdf: dict | None = None,
+    parent_facet: np.ndarray | None = None,
 ) -> dict:
     """Render every image of one set as a linear float EXR into ``out_dir``; write ``frames.json``.
 
@@ -332,14 +333,29 @@ def render_image_set(
     ``bsdf`` (a ``render_models.bsdf_dict``) renders a uniform surface of
     another photometric law instead; ``albedo`` and ``minnaert_k`` are then
     ignored and ``frames.json`` records the BSDF under ``bsdf``.
+
+    ``parent_facet`` renders a finer mesh made from a shape model
+    (``relief.relief_mesh``): ``vertices_m`` and ``faces`` are the fine
+    mesh's, ``parent_facet[i]`` the shape-model facet of fine face ``i``
+    (every facet ``0 .. parent_facet.max()`` has children). A per-facet
+    ``albedo`` or ``minnaert_k`` then has one value per shape-model facet,
+    each fine face takes its parent's, and the facet maps and the
+    statistics in ``frames.json`` stay on the shape model's facets;
+    ``frames.json`` gives the rendered mesh's size under ``render_mesh``.
     """
     import mitsuba as mi
 
+    n_facets = len(faces)
+    if parent_facet is not None:
+        parent_facet = np.asarray(parent_facet)
+        if parent_facet.shape != (len(faces),) or not np.issubdtype(parent_facet.dtype, np.integer) or (len(faces) and parent_facet.min() < 0):
+            raise ValueError(f"parent_facet must hold one non-negative facet index per face, shape ({len(faces)},); got {parent_facet.dtype} {parent_facet.shape}")
+        n_facets = int(parent_facet.max()) + 1 if len(faces) else 0
     if bsdf is not None:
         albedo = minnaert_k = float("nan")
         per_facet = None
     else:
-        per_facet = per_facet_parameters(albedo, minnaert_k, len(faces))  # validate before the slow set-up
+        per_facet = per_facet_parameters(albedo, minnaert_k, n_facets)  # validate before the slow set-up
     variant = setup_mitsuba(variant)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -347,6 +363,8 @@ def render_image_set(
         props = mi.Properties()
         props["bsdf"] = mi.load_dict(bsdf)
         mesh = mi.Mesh("body", len(vertices_m), len(faces), props=props, has_vertex_normals=False)
+    elif per_facet is not None and parent_facet is not None:
+        mesh = minnaert_mesh(len(vertices_m), len(faces), per_facet[0][parent_facet], per_facet[1][parent_facet])
     else:
         mesh = minnaert_mesh(len(vertices_m), len(faces), albedo, minnaert_k)
     mesh_params = mi.traverse(mesh)
@@ -381,11 +399,13 @@ def render_image_set(
         "render_seconds": seconds,
         "images": images,
     }
+    if parent_facet is not None:
+        metadata["render_mesh"] = {"vertices": len(vertices_m), "faces": len(faces), "shape_model_facets": n_facets}
     if facet_maps_path is not None and bsdf is None:
         from asteroid_photometry.world import surface_maps
 
         facet_maps_path = Path(facet_maps_path)
-        albedo_map, k_map = per_facet or (np.full(len(faces), float(albedo)), np.full(len(faces), float(minnaert_k)))
+        albedo_map, k_map = per_facet or (np.full(n_facets, float(albedo)), np.full(n_facets, float(minnaert_k)))
         surface_maps.save_facet_maps(facet_maps_path, albedo_map, k_map)
         try:
             metadata["facet_maps"] = str(facet_maps_path.resolve().relative_to(out_dir.resolve()))
