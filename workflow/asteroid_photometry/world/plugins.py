@@ -68,8 +68,12 @@ def register_photometric_plugin():
             cos_g = dr.dot(si.wi, wo)
             # 1 - cos g from the chord between the two directions: exact for small phase angles in float32.
             one_minus_cos_g = 0.5 * dr.squared_norm(si.wi - wo)
+            # The azimuth between the planes of incidence and emission from the components in the
+            # surface plane: accurate in float32 also near opposition, where the arccos of
+            # (cos g - cos_i cos_o) / (sin_i sin_o) loses half the digits.
+            psi = dr.atan2(dr.abs(si.wi.x * wo.y - si.wi.y * wo.x), si.wi.x * wo.x + si.wi.y * wo.y)
             valid = active & (cos_o > 0.0) & (cos_i > 0.0)
-            value = self.law.radiance_factor(self.params, cos_i, cos_o, cos_g, ops, one_minus_cos_g) * dr.inv_pi
+            value = self.law.radiance_factor(self.params, cos_i, cos_o, cos_g, ops, one_minus_cos_g, psi) * dr.inv_pi
             return dr.select(valid, value, 0.0)
 
         def to_string(self):
