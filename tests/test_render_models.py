@@ -43,6 +43,26 @@ def test_sphere_image_matches_the_law(variant, model):
     assert np.abs(image - wrong)[interior].mean() > 10 * difference.mean()
 
 
+def test_centre_sampling_renders_the_law_at_the_pixel_centre_ray_at_opposition(variant):
+    """One ray through each pixel's centre: the Hapke sphere at phase 0 is the law on those rays to float32 rounding.
+
+    Random rays average the radiance over the pixel instead (here over the
+    sphere's curvature as well), which the check tells apart.
+    """
+    light = cameras.light_dir_cam(0.0)
+    bsdf = render_models.bsdf_dict("hapke", PARAMS["hapke"])
+    centre_ray, _, interior = closed_form_sphere("hapke", PARAMS["hapke"], light, **SPHERE, supersample=1)
+    assert interior.sum() > 400
+    centre_ray = centre_ray[interior]
+    centred = render_models.render_sphere(**SPHERE, bsdf=bsdf, light_dir_cam=light, spp=1, pixel_sampling="centre")[interior]
+    error = np.abs(centred / centre_ray - 1.0)
+    assert np.max(error) < 2e-6
+    area = render_models.render_sphere(**SPHERE, bsdf=bsdf, light_dir_cam=light, spp=4)[interior]
+    assert np.sqrt(np.mean((area / centre_ray - 1.0) ** 2)) > 10 * np.sqrt(np.mean(error**2))
+    with pytest.raises(ValueError, match="one ray per pixel"):
+        render_models.render_sphere(**SPHERE, bsdf=bsdf, light_dir_cam=light, spp=4, pixel_sampling="centre")
+
+
 def test_hapke_plugin_limit_renders_the_lommel_seeliger_image(variant):
     light = cameras.light_dir_cam(25.0)
     limit = dict(w=0.57, roughness_deg=0.0, hg_b=0.0, hg_c=1.0, b0=0.0, h=0.05, multiple_scattering=False)

@@ -83,8 +83,11 @@ def register_photometric_plugin():
     return PhotometricBSDF
 
 
-def render_sphere(radius_m, distance_m, image_size, fov_deg, bsdf: dict, light_dir_cam, spp) -> np.ndarray:
-    """A sphere with ``bsdf`` (a ``bsdf_dict``) centred on the optical axis, for the closed-form checks."""
+def render_sphere(radius_m, distance_m, image_size, fov_deg, bsdf: dict, light_dir_cam, spp, pixel_sampling="area") -> np.ndarray:
+    """A sphere with ``bsdf`` (a ``bsdf_dict``) centred on the optical axis, for the closed-form checks.
+
+    ``pixel_sampling``: ``render.PIXEL_SAMPLINGS`` (``centre`` with ``spp`` 1).
+    """
     import mitsuba as mi
     from asteroid_photometry.world.cameras import ImagingGeometry, Intrinsics
     from asteroid_photometry.world.render import scene_dict
@@ -94,7 +97,7 @@ def render_sphere(radius_m, distance_m, image_size, fov_deg, bsdf: dict, light_d
     pose[2, 3] = distance_m
     geometry = ImagingGeometry(Intrinsics(image_size, image_size, focal_px, image_size / 2, image_size / 2), pose[None], distance_m, 0.0)
     body = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": radius_m, "bsdf": bsdf}
-    scene = mi.load_dict(scene_dict(geometry, light_dir_cam, spp, body))
+    scene = mi.load_dict(scene_dict(geometry, light_dir_cam, spp, body, pixel_sampling))
     return np.array(mi.render(scene, spp=spp), dtype=np.float64)[..., 0]
 
 
