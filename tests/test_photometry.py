@@ -72,6 +72,21 @@ def test_every_law_is_reciprocal_and_finite(name):
     assert np.allclose(forward, backward, rtol=1e-10, atol=0)
 
 
+def test_hapke_given_psi_is_the_psi_of_the_cosines():
+    """The renderer's measured azimuth psi and the one the law derives from the cosines give the same law."""
+    rng = np.random.default_rng(3)
+    light, view = (rng.normal(size=(2000, 3)) for _ in range(2))
+    light[:, 2], view[:, 2] = np.abs(light[:, 2]) + 0.1, np.abs(view[:, 2]) + 0.1
+    light, view = light / np.linalg.norm(light, axis=1, keepdims=True), view / np.linalg.norm(view, axis=1, keepdims=True)
+    cos_i, cos_o, cos_g = photometry.geometry_cosines(np.array([0.0, 0.0, 1.0]), light, view)
+    psi = np.abs(np.arctan2(view[:, 0] * light[:, 1] - view[:, 1] * light[:, 0], view[:, 0] * light[:, 0] + view[:, 1] * light[:, 1]))
+    law = photometry.get_model("hapke")
+    derived = law.radiance_factor(ITOKAWA_HAPKE, cos_i, cos_o, cos_g)
+    assert np.allclose(law.radiance_factor(ITOKAWA_HAPKE, cos_i, cos_o, cos_g, psi=psi), derived, rtol=1e-9, atol=0)
+    # The given psi is used: another one changes the roughness correction.
+    assert np.max(np.abs(law.radiance_factor(ITOKAWA_HAPKE, cos_i, cos_o, cos_g, psi=np.pi - psi) / derived - 1)) > 1e-2
+
+
 def test_finite_difference_jacobian_matches_the_analytic_minnaert_one():
     cos_i, cos_o, cos_g = random_geometry(1000, seed=3)
     keep = (cos_i > 0.1) & (cos_o > 0.1)

@@ -13,7 +13,6 @@ rule render_model_set:
         law=model_set_law,
         law_params=lambda wildcards: MODEL_SETTINGS["parameters"][model_set_law(wildcards)],
         light_angle_deg=model_set_angle,
-        samples_per_pixel=MODEL_SETTINGS["samples_per_pixel"],
         mitsuba_variant=config["mitsuba_variant"],
         seed=model_set_seed,
     threads: 2

@@ -11,7 +11,6 @@ render_model_set(
     snakemake.params.law,  # noqa: F821
     dict(snakemake.params.law_params),  # noqa: F821
     snakemake.params.light_angle_deg,  # noqa: F821
-    snakemake.params.samples_per_pixel,  # noqa: F821
     snakemake.params.mitsuba_variant,  # noqa: F821
     snakemake.output.images,  # noqa: F821
     seed=snakemake.params.seed,  # noqa: F821

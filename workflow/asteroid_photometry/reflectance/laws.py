@@ -73,20 +73,20 @@ def geometry_cosines(normal, light, view):
 # --------------------------------------------------------------------------
 
 
-def _lambert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
+def _lambert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None, psi=None):
     return p["albedo"] * cos_i
 
 
-def _lommel_seeliger(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
+def _lommel_seeliger(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None, psi=None):
     return p["albedo"] * 2.0 * cos_i / (cos_i + cos_o)
 
 
-def _lunar_lambert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
+def _lunar_lambert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None, psi=None):
     lunar_l = p["lunar_l"]
     return p["albedo"] * (2.0 * lunar_l * cos_i / (cos_i + cos_o) + (1.0 - lunar_l) * cos_i)
 
 
-def _minnaert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
+def _minnaert(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None, psi=None):
     # The log form (minnaert_factor), not minnaert_brightness's powers: the two differ in the last bits.
     return p["albedo"] * minnaert_factor(p["minnaert_k"], ops.log(cos_i), ops.log(cos_o), ops)
 
@@ -104,7 +104,7 @@ def _chandrasekhar_h(x, w, ops):
     return 1.0 / (1.0 - w * x * (r0 + (1.0 - 2.0 * r0 * x) * 0.5 * ops.log((1.0 + x) / x)))
 
 
-def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scattering=True, one_minus_cos_g=None):
+def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scattering=True, one_minus_cos_g=None, psi=None):
     """Hapke's radiance factor with shadow-hiding opposition and macroscopic roughness.
 
     The formulation is the one of Hapke's 1993 book (Theory of Reflectance
@@ -133,6 +133,14 @@ def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scatte
     ``one_minus_cos_g``, where given, is ``1 - cos g`` computed without
     cancellation (the renderer's float32 cos g near 1 resolves g only to
     0.02 deg, too coarse for the opposition surge at phase 0).
+
+    ``psi``, where given, is the azimuth between the planes of incidence and
+    emission (radians, in [0, pi]) measured directly (the renderer's, from
+    the directions' components in the surface plane). Without it psi is
+    ``arccos((cos g - cos_i cos_o) / (sin_i sin_e))``: exact in float64,
+    but in float32 near opposition (psi small) the cosine's rounding, about
+    1e-7, becomes an error of sqrt(2e-7), about 5e-4 rad, in psi, and the
+    roughness correction, steep in psi there, moves by up to 1e-3 relative.
     """
     w, b0, h = p["w"], p["b0"], p["h"]
     mu0 = ops.maximum(cos_i, COS_FLOOR)
@@ -158,9 +166,15 @@ def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scatte
     e2_i = ops.exp(-1.0 / math.pi * cot_theta * cot_theta * cot_i * cot_i)
     e2_e = ops.exp(-1.0 / math.pi * cot_theta * cot_theta * cot_e * cot_e)
     # psi: the azimuth between the planes of incidence and emission.
-    cos_psi = _clip(ops, (cos_g - mu0 * mu) / (sin_i * sin_e), -1.0, 1.0)
-    psi = ops.arccos(cos_psi)
-    sin2_half_psi = 0.5 * (1.0 - cos_psi)
+    if psi is None:
+        cos_psi = _clip(ops, (cos_g - mu0 * mu) / (sin_i * sin_e), -1.0, 1.0)
+        psi = ops.arccos(cos_psi)
+        sin2_half_psi = 0.5 * (1.0 - cos_psi)
+    else:
+        psi = _clip(ops, psi, 0.0, math.pi)
+        cos_psi = ops.cos(psi)
+        sin_half_psi = ops.sin(0.5 * psi)
+        sin2_half_psi = sin_half_psi * sin_half_psi
     f_psi = ops.exp(-2.0 * ops.tan(ops.minimum(psi, math.pi - 1e-3) * 0.5))
     eta_i = chi * (mu0 + sin_i * tan_theta * e2_i / (2.0 - e1_i))
     eta_e = chi * (mu + sin_e * tan_theta * e2_e / (2.0 - e1_e))
@@ -186,8 +200,8 @@ def hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops=NUMPY_OPS, multiple_scatte
     return 0.25 * w * mu0e / (mu0e + mue) * scattering * shadowing
 
 
-def _hapke(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None):
-    return hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops, multiple_scattering=bool(p.get("multiple_scattering", True)), one_minus_cos_g=one_minus_cos_g)
+def _hapke(p, cos_i, cos_o, cos_g, ops, one_minus_cos_g=None, psi=None):
+    return hapke_radiance_factor(p, cos_i, cos_o, cos_g, ops, multiple_scattering=bool(p.get("multiple_scattering", True)), one_minus_cos_g=one_minus_cos_g, psi=psi)
 
 
 # --------------------------------------------------------------------------
@@ -226,10 +240,12 @@ class PhotometricModel:
             checked[name] = value if value.ndim else float(value)
         return checked
 
-    def radiance_factor(self, params: dict, cos_i, cos_o, cos_g, ops=NUMPY_OPS, one_minus_cos_g=None):
+    def radiance_factor(self, params: dict, cos_i, cos_o, cos_g, ops=NUMPY_OPS, one_minus_cos_g=None, psi=None):
         """``b`` for every row (numpy arrays broadcast; Dr.Jit arrays with ``ops=drjit_ops()``).
 
         ``one_minus_cos_g``: optional, ``1 - cos_g`` free of cancellation (the renderer's).
+        ``psi``: optional, the azimuth between the planes of incidence and
+        emission measured directly (the renderer's; only Hapke uses it).
         """
         if ops is NUMPY_OPS:
             cos_i = np.maximum(np.asarray(cos_i, dtype=np.float64), COS_FLOOR)
@@ -237,7 +253,7 @@ class PhotometricModel:
             cos_g = np.asarray(cos_g, dtype=np.float64)
         else:
             cos_i, cos_o = ops.maximum(cos_i, COS_FLOOR), ops.maximum(cos_o, COS_FLOOR)
-        return self.law(params, cos_i, cos_o, cos_g, ops, one_minus_cos_g)
+        return self.law(params, cos_i, cos_o, cos_g, ops, one_minus_cos_g, psi)
 
     def jacobian(self, params: dict, cos_i, cos_o, cos_g, names, step=1e-6, central=True):
         """Finite-difference derivatives of ``b`` with respect to ``names``.

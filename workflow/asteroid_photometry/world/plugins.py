@@ -68,8 +68,12 @@ def register_photometric_plugin():
             cos_g = dr.dot(si.wi, wo)
             # 1 - cos g from the chord between the two directions: exact for small phase angles in float32.
             one_minus_cos_g = 0.5 * dr.squared_norm(si.wi - wo)
+            # The azimuth between the planes of incidence and emission from the components in the
+            # surface plane: accurate in float32 also near opposition, where the arccos of
+            # (cos g - cos_i cos_o) / (sin_i sin_o) loses half the digits.
+            psi = dr.atan2(dr.abs(si.wi.x * wo.y - si.wi.y * wo.x), si.wi.x * wo.x + si.wi.y * wo.y)
             valid = active & (cos_o > 0.0) & (cos_i > 0.0)
-            value = self.law.radiance_factor(self.params, cos_i, cos_o, cos_g, ops, one_minus_cos_g) * dr.inv_pi
+            value = self.law.radiance_factor(self.params, cos_i, cos_o, cos_g, ops, one_minus_cos_g, psi) * dr.inv_pi
             return dr.select(valid, value, 0.0)
 
         def to_string(self):
@@ -79,8 +83,11 @@ def register_photometric_plugin():
     return PhotometricBSDF
 
 
-def render_sphere(radius_m, distance_m, image_size, fov_deg, bsdf: dict, light_dir_cam, spp) -> np.ndarray:
-    """A sphere with ``bsdf`` (a ``bsdf_dict``) centred on the optical axis, for the closed-form checks."""
+def render_sphere(radius_m, distance_m, image_size, fov_deg, bsdf: dict, light_dir_cam, spp, pixel_sampling="area") -> np.ndarray:
+    """A sphere with ``bsdf`` (a ``bsdf_dict``) centred on the optical axis, for the closed-form checks.
+
+    ``pixel_sampling``: ``render.PIXEL_SAMPLINGS`` (``centre`` with ``spp`` 1).
+    """
     import mitsuba as mi
     from asteroid_photometry.world.cameras import ImagingGeometry, Intrinsics
     from asteroid_photometry.world.render import scene_dict
@@ -90,7 +97,7 @@ def render_sphere(radius_m, distance_m, image_size, fov_deg, bsdf: dict, light_d
     pose[2, 3] = distance_m
     geometry = ImagingGeometry(Intrinsics(image_size, image_size, focal_px, image_size / 2, image_size / 2), pose[None], distance_m, 0.0)
     body = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": radius_m, "bsdf": bsdf}
-    scene = mi.load_dict(scene_dict(geometry, light_dir_cam, spp, body))
+    scene = mi.load_dict(scene_dict(geometry, light_dir_cam, spp, body, pixel_sampling))
     return np.array(mi.render(scene, spp=spp), dtype=np.float64)[..., 0]
 
 

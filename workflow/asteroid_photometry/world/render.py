@@ -9,7 +9,11 @@ centre, which is the world origin, and the camera sits at ``-t``. Only direct li
 setting): the ``direct`` integrator with one emitter sample per camera
 sample, so cast shadows are there and inter-reflections are not. The pixel
 filter is a box, so a pixel is the plain average of the radiance over its
-footprint, and a pixel that lies entirely on one flat facet is exact.
+footprint, and a pixel that lies entirely on one flat facet is exact up to the
+Monte Carlo scatter of the view direction inside the pixel (random rays,
+``pixel_sampling="area"``). ``pixel_sampling="centre"`` instead sends one ray
+through each pixel's centre: a pure pixel then holds the law exactly along the
+view direction that the observations give it (the model-mismatch sets).
 
 Albedo and k are either one value for the whole body (the paper's
 setting) or one value per facet (``surface_maps``). Per-facet values ride
@@ -37,6 +41,10 @@ from asteroid_photometry.core import files
 from asteroid_photometry.world.cameras import ImagingGeometry
 
 log = logging.getLogger(__name__)
+
+#: How a pixel is sampled: ``area``, ``spp`` random rays (the average over the
+#: footprint); ``centre``, one ray through the pixel's centre.
+PIXEL_SAMPLINGS = ("area", "centre")
 
 DEFAULT_LLVM_PATHS = ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/aarch64-linux-gnu/libLLVM.so.19.1")
 VARIANT_PREFERENCE = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
@@ -215,7 +223,18 @@ def _mitsuba_camera_to_world(camera_translation: np.ndarray):
     return mi.ScalarTransform4f().translate((-np.asarray(camera_translation, float)).tolist()) @ mi.ScalarTransform4f().scale([-1.0, -1.0, 1.0])
 
 
-def scene_dict(geometry: ImagingGeometry, light_dir_cam: np.ndarray, spp: int, body: dict) -> dict:
+def _sampler(spp: int, pixel_sampling: str) -> dict:
+    if pixel_sampling == "area":
+        return {"type": "independent", "sample_count": int(spp)}
+    if pixel_sampling == "centre":
+        if int(spp) != 1:
+            raise ValueError(f"pixel_sampling 'centre' sends one ray per pixel; got {spp} samples per pixel")
+        # The stratified sampler without jitter puts its one sample at the centre of its one stratum, the pixel.
+        return {"type": "stratified", "sample_count": 1, "jitter": False}
+    raise ValueError(f"pixel_sampling {pixel_sampling!r} is not one of {PIXEL_SAMPLINGS}")
+
+
+def scene_dict(geometry: ImagingGeometry, light_dir_cam: np.ndarray, spp: int, body: dict, pixel_sampling: str = "area") -> dict:
     """A Mitsuba scene in the camera frame: perspective camera at the origin, directional Sun, ``body``."""
     intrinsics = geometry.intrinsics
     if intrinsics.width != intrinsics.height or abs(intrinsics.cx - intrinsics.width / 2) > 1e-9:
@@ -242,7 +261,7 @@ def scene_dict(geometry: ImagingGeometry, light_dir_cam: np.ndarray, spp: int, b
                 "component_format": "float32",
                 "rfilter": {"type": "box"},
             },
-            "sampler": {"type": "independent", "sample_count": int(spp)},
+            "sampler": _sampler(spp, pixel_sampling),
         },
         # ``direction`` is where the light travels: away from the Sun.
         "sun": {"type": "directional", "direction": (-np.asarray(light_dir_cam, float)).tolist(), "irradiance": {"type": "rgb", "value": np.pi}},
@@ -317,6 +336,7 @@ def render_image_set(
     facet_maps_path: Path | None = None,
     bsdf: dict | None = None,
     parent_facet: np.ndarray | None = None,
+    pixel_sampling: str = "area",
 ) -> dict:
     """Render every image of one set as a linear float EXR into ``out_dir``; write ``frames.json``.
 
@@ -342,6 +362,8 @@ def render_image_set(
     each fine face takes its parent's, and the facet maps and the
     statistics in ``frames.json`` stay on the shape model's facets;
     ``frames.json`` gives the rendered mesh's size under ``render_mesh``.
+    ``pixel_sampling``: ``area`` (``spp`` random rays per pixel) or
+    ``centre`` (one ray through each pixel's centre; ``spp`` must be 1).
     """
     import mitsuba as mi
 
@@ -356,6 +378,7 @@ def render_image_set(
         per_facet = None
     else:
         per_facet = per_facet_parameters(albedo, minnaert_k, n_facets)  # validate before the slow set-up
+    _sampler(spp, pixel_sampling)
     variant = setup_mitsuba(variant)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -371,7 +394,7 @@ def render_image_set(
     mesh_params["faces"] = mi.UInt32(np.ascontiguousarray(faces, dtype=np.uint32).ravel())
     mesh_params["vertex_positions"] = mi.Float(np.zeros(3 * len(vertices_m), dtype=np.float32))
     mesh_params.update()
-    scene = mi.load_dict(scene_dict(geometry, light_dir_cam, spp, mesh))
+    scene = mi.load_dict(scene_dict(geometry, light_dir_cam, spp, mesh, pixel_sampling))
     params = mi.traverse(scene)
 
     images = []
@@ -395,6 +418,7 @@ def render_image_set(
         "light_dir_cam": np.asarray(light_dir_cam, float).tolist(),
         "intrinsics": geometry.intrinsics.to_dict(),
         "samples_per_pixel": int(spp),
+        "pixel_sampling": pixel_sampling,
         "mitsuba_variant": variant,
         "render_seconds": seconds,
         "images": images,
