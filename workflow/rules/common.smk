@@ -17,7 +17,7 @@ WORKFLOW_DIR = Path(_basedir).resolve().parent
 if str(WORKFLOW_DIR) not in sys.path:
     sys.path.insert(0, str(WORKFLOW_DIR))
 
-from asteroid_photometry.core.config import validate_config, ConfigError
+from asteroid_photometry.core.config import table2_conditions, validate_config, ConfigError
 from asteroid_photometry.world.image_sets import image_sets, named_entry
 from asteroid_photometry.world.shape import get_shape_model_spec
 from asteroid_photometry.experiments.mismatch import model_sets
@@ -38,7 +38,9 @@ SWEEPS = {
 SWEEPS = {sweep: ids for sweep, ids in SWEEPS.items() if ids}
 PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["priors"]] if config["reconstruction"]["enabled"] else []
 # Table 2's imaging conditions, by name.
-CONDITIONS = {entry["name"]: entry for entry in config["imaging_conditions"]} if PRIOR_SETTINGS else {}
+CONDITIONS = table2_conditions(config)
+for _name in sorted({entry["name"] for entry in config["imaging_conditions"]} - set(CONDITIONS)) if PRIOR_SETTINGS else ():
+    logger.info(f"imaging condition {_name} is off: the noise level or surface map it needs is turned off")
 # The cloud drawn in Table 2's figure: the first condition's.
 TABLE2_PLOT_CONDITION = next(iter(CONDITIONS), "ideal")
 # An empty noise_levels turns the noise off, and the noise Monte Carlo with it.

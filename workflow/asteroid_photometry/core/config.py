@@ -219,12 +219,25 @@ def _check_imaging_conditions(config):
     uses_priors = True in config.get("reconstruction", {}).get("priors", [True])
     for position, entry in enumerate(conditions):
         where = f"config key 'imaging_conditions[{position}]' ({entry['name']})"
-        if entry.get("sensor_level") is not None and entry["sensor_level"] not in level_names:
+        # As for the Monte Carlo: an empty noise_levels (surface_maps) turns the conditions that need one off
+        # (table2_conditions), a name that is not there is a mistake.
+        if entry.get("sensor_level") is not None and level_names and entry["sensor_level"] not in level_names:
             raise ConfigError(f"{where}: sensor_level {entry['sensor_level']!r} is not the name of a 'noise_levels' entry (names: {level_names})")
-        if entry.get("surface_map") is not None and entry["surface_map"] not in map_names:
+        if entry.get("surface_map") is not None and map_names and entry["surface_map"] not in map_names:
             raise ConfigError(f"{where}: surface_map {entry['surface_map']!r} is not the name of a 'surface_maps' entry (names: {map_names})")
         for key in ("view_latitude_deg", "light_out_of_plane_deg"):
             if entry.get(key, 0.0) != 0.0:
                 raise ConfigError(f"{where}: {key} {entry[key]} is not run yet; only 0 (the configured imaging geometry and light angles)")
         if uses_priors and entry.get("prior_sigma_m", 1.0) == 0.0:
             raise ConfigError(f"{where}: prior_sigma_m 0 gives no navigation priors, but reconstruction.priors asks for a reconstruction with them")
+
+
+def table2_conditions(config) -> dict:
+    """The imaging conditions Table 2 runs, by name: all of ``imaging_conditions`` but those that need a
+    noise level or a surface map when ``noise_levels`` or ``surface_maps`` is empty (that turns them off)."""
+    if not config["reconstruction"]["enabled"]:
+        return {}
+    return {
+        entry["name"]: entry for entry in config["imaging_conditions"]
+        if not (entry.get("sensor_level") and not config["noise_levels"]) and not (entry.get("surface_map") and not config["surface_maps"])
+    }
