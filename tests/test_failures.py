@@ -308,7 +308,11 @@ def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_shor
     full = estimate_footprint(config, sets, 2, 3)
     # The default run: 80 sets; 32 clean sets of 7.3 MB and 48 noisy ones of 16.4 MB are 1.0 GB of images alone.
     assert full.n_sets == 80 and 1.0e9 < full.total_disk_bytes < 2.0e9
-    assert full.largest_job[0] == "refine_cloud" and "estimated footprint of this run: 1.4 GB" in full.summary()
+    assert full.largest_job[0] == "refine_cloud" and "estimated footprint of this run: 1.5 GB" in full.summary()
+    # Table 2 under the two conditions of the default config: a noisy mission set weighs about what a noisy rendered one does.
+    two = estimate_footprint(config, sets, 2, 3, conditions={"ideal": {}, "amica": {"sensor_level": "amica12"}})
+    assert two.disk_bytes["reconstructions"] == pytest.approx(2 * full.disk_bytes["reconstructions"])
+    assert two.disk_bytes["mission sets"] == pytest.approx(full.disk_bytes["mission sets"] * (1 + 1.74 / 0.78))
     large = estimate_footprint(dict(config, image_size=1024), sets, 2, 3)
     assert large.disk_bytes["rendered images"] == pytest.approx(4 * full.disk_bytes["rendered images"])
     assert estimate_footprint(config, sets, 0, 3).disk_bytes["reconstructions"] == 0

@@ -39,8 +39,9 @@ SWEEPS = {sweep: ids for sweep, ids in SWEEPS.items() if ids}
 PRIOR_SETTINGS = ["on" if use else "off" for use in config["reconstruction"]["priors"]] if config["reconstruction"]["enabled"] else []
 # Table 2's imaging conditions, by name.
 CONDITIONS = table2_conditions(config)
-for _name in sorted({entry["name"] for entry in config["imaging_conditions"]} - set(CONDITIONS)) if PRIOR_SETTINGS else ():
-    logger.info(f"imaging condition {_name} is off: the noise level or surface map it needs is turned off")
+_CONDITIONS_OFF = sorted({entry["name"] for entry in config["imaging_conditions"]} - set(CONDITIONS)) if PRIOR_SETTINGS else []
+if _CONDITIONS_OFF:
+    logger.info(f"imaging conditions off (the noise level or surface map they need is turned off): {', '.join(_CONDITIONS_OFF)}")
 # The cloud drawn in Table 2's figure: the first condition's.
 TABLE2_PLOT_CONDITION = next(iter(CONDITIONS), "ideal")
 # An empty noise_levels turns the noise off, and the noise Monte Carlo with it.
@@ -64,7 +65,7 @@ ESTIMATORS = config["estimators"]
 
 # The disk and memory the configured run needs, against what this machine
 # has: in the log of every run, dry runs included (make footprint).
-FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS), n_model_sets=len(MODEL_SETS))
+FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS), n_model_sets=len(MODEL_SETS), conditions=CONDITIONS)
 logger.info(FOOTPRINT.summary())
 try:
     PARALLEL_JOBS = int(workflow.cores)
@@ -91,7 +92,7 @@ wildcard_constraints:
 # A set's rendered images and the renderer's record of them (true poses, light, albedo, k): written by rule
 # render (clean sets) or add_noise (noisy ones). Truth: only the world and the scoring rules read it.
 RENDERED_SET_DIR = "results/truth/render/{set_id}"
-# A set as a mission knows it under one imaging condition (rule mission): the image-only path starts here.
+# A set as a mission knows it under one imaging condition, written by the mission rule; the image-only path starts here.
 MISSION_SET_DIR = "results/mission/{imaging}/{set_id}"
 
 
