@@ -132,3 +132,33 @@ def test_flat_facets_are_exact_on_pure_pixels_and_images_are_not_mirrored(varian
 def test_unknown_variant_is_refused():
     with pytest.raises(RuntimeError, match="mitsuba_variant"):
         render.choose_variant("no_such_variant")
+
+
+WRITE_AFTER_RENDER = """
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[2])
+from asteroid_photometry.world import render
+render.setup_mitsuba("llvm_ad_rgb")
+render.set_render_threads(int(sys.argv[1]))
+import mitsuba as mi
+image = render.render_sphere(1000.0, 5000.0, 32, 30.0, 0.5, 0.8, np.array([0.0, 0.0, -1.0]), 2)
+mi.Bitmap(np.asarray(image, dtype=np.float32)[..., None]).write(sys.argv[3])
+print("written")
+"""
+
+
+def test_a_render_job_given_one_core_still_writes_its_images(tmp_path):
+    """``snakemake --cores 1`` gives the render job one thread: with Dr.Jit's pool at one, writing the EXR hung."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if not render.variant_works("llvm_ad_rgb"):
+        pytest.skip("llvm_ad_rgb is not usable here")
+    workflow = str(Path(__file__).resolve().parents[1] / "workflow")
+    run = subprocess.run(
+        [sys.executable, "-c", WRITE_AFTER_RENDER, "1", workflow, str(tmp_path / "sphere.exr")], capture_output=True, text=True, timeout=120,
+    )
+    assert run.returncode == 0 and "written" in run.stdout, run.stderr[-2000:]
+    assert render.read_image(tmp_path / "sphere.exr").max() > 0

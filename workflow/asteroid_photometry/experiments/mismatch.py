@@ -74,9 +74,7 @@ def render_model_set(shape_npz, cameras_json, model: str, params: dict, light_an
     shape = load_shape_npz(shape_npz)
     geometry = load_imaging_geometry(cameras_json)
     if threads:
-        import drjit as dr
-
-        dr.set_thread_count(int(threads))
+        render.set_render_threads(threads)
     part = files.partial_directory(out_dir)  # renamed to out_dir when the whole set is written
     render.render_image_set(
         shape["vertices_m"], shape["faces"], geometry, None, None, cameras.light_dir_cam(light_angle_deg), 1,

@@ -60,9 +60,7 @@ def render_set(shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, 
     shape = load_shape_npz(shape_npz)
     geometry = load_imaging_geometry(cameras_json)
     if threads:
-        import drjit as dr
-
-        dr.set_thread_count(int(threads))
+        render.set_render_threads(threads)
     albedo, minnaert_k, with_maps = image_set.albedo, image_set.minnaert_k, False
     if surface_map is not None:
         keys = surface_maps.SPEC_KEYS[surface_map["kind"]]

@@ -85,6 +85,19 @@ def variant_works(variant: str) -> bool:
     return probe.returncode == 0
 
 
+#: Fewest threads Dr.Jit's pool may have: with one, writing an EXR (``mi.Bitmap.write``) waits forever for a
+#: worker (seen with Mitsuba 3.9.1 on llvm_ad_rgb: a render job given one core by ``snakemake --cores 1`` hung
+#: after its first image). A second thread costs a one-core job nothing but the writer's share.
+MIN_RENDER_THREADS = 2
+
+
+def set_render_threads(threads) -> None:
+    """Dr.Jit's thread pool for a job given ``threads`` cores, never fewer than ``MIN_RENDER_THREADS``."""
+    import drjit as dr
+
+    dr.set_thread_count(max(int(threads), MIN_RENDER_THREADS))
+
+
 def choose_variant(requested: str = "auto") -> str:
     """The Mitsuba variant to render with: the one asked for, or the fastest that works."""
     import mitsuba as mi
