@@ -25,7 +25,7 @@ from asteroid_photometry.estimation import angle_between_deg, FitResult, light_a
 TABLE1_COLUMNS = [
     "set_id", "method", "status", "light_deg_true", "light_deg_est", "light_deg_err", "light_dir_err_deg",
     "albedo_true", "albedo_est", "albedo_err", "albedo_rmse", "k_true", "k_est", "k_err", "k_rmse",
-    "n_points", "n_obs", "converged",
+    "n_points", "n_obs", "converged", "selection_passes", "selection_converged", "selection_equals_true", "selection_differences",
 ]
 
 #: Wall-clock columns (``fit_seconds``, ``refit_seconds``, ...) of the per-fit summaries: they change from
@@ -77,6 +77,16 @@ def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
         "converged": bool(result.success),
     }
     return row
+
+
+def selection_agreement(selected: np.ndarray, selected_by_true_light: np.ndarray) -> dict:
+    """Scoring of a selection made with an estimated light: is it the one the true light makes?
+
+    Both are boolean masks over the same candidate observations.
+    ``selection_differences`` counts the observations only one of them keeps.
+    """
+    differences = int(np.count_nonzero(np.asarray(selected, bool) != np.asarray(selected_by_true_light, bool)))
+    return {"selection_equals_true": differences == 0, "selection_differences": differences}
 
 
 def _rows_with_status(summary_paths) -> pd.DataFrame:
