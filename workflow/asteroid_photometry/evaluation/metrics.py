@@ -155,6 +155,7 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
             )
         worst = group.loc[:, ["light_deg_err", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse"]].abs().max()
         lines += ["", "Worst over the sets (absolute): " + ", ".join(f"{name} {value:.2g}" for name, value in worst.items()), ""]
+        lines += _selection_lines(group)
     paper_worst = (paper["light_deg_est"] - paper["light_deg_true"]).abs().max()
     lines += [
         f"The paper's worst: light {paper_worst:.3f} deg, albedo {(paper['albedo_est'] - paper['albedo_true']).abs().max():.3f}, "
@@ -162,6 +163,22 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _selection_lines(group: pd.DataFrame) -> list[str]:
+    """How the sets' observations were selected (with the estimated light), and whether the true light selects the same."""
+    selected = group[(group.status == OK) & group.selection_passes.notna()] if "selection_passes" in group else group.iloc[:0]
+    if not len(selected):
+        return []
+    passes = selected.selection_passes
+    same = selected.selection_equals_true.astype(bool)
+    return [
+        f"Observations selected with the light estimated from the images in {passes.min():.0f} to {passes.max():.0f} passes "
+        f"({int(selected.selection_converged.astype(bool).sum())} of {len(selected)} sets settled); the true light selects the same "
+        f"observations in {int(same.sum())} of {len(selected)} sets"
+        + (f" (at most {selected.selection_differences.max():.0f} differ)." if not same.all() else "."),
+        "",
+    ]
 
 
 def collect_sweep(summary_paths) -> pd.DataFrame:

@@ -18,7 +18,8 @@ ray casting with open3d on the body-frame mesh:
   a pixel that touches none of its corners could slip through; at the
   default 1.2 m pixels and 4.7 m facets none does);
 - lit, with no cast shadow: rays from the centroid and from points near the
-  three vertices towards the Sun all escape;
+  three vertices towards the Sun all escape, and (pure pixels) rays from
+  where the pixel's corners and centre meet the facet;
 - not grazing: ``cos_i >= min_cos_incidence`` and ``cos_o >= min_cos_emission``.
 
 With ``pixel_selection: projection`` the pixel is instead the one that
@@ -26,9 +27,14 @@ contains the centroid's projection, whenever the ray through its centre
 hits the facet, mixed or not, as the paper did; it exists to measure what
 mixed pixels cost (docs/method.md, "Mixed and pure pixels").
 
-The geometry of the observations (which point, which pixel, the normal and
-view direction in the camera frame) depends on the light only through the
-shadows, so it is computed once per light angle and shared by the sets.
+The tests split in two. What needs no light (coverage, ``cos_o``) gives the
+*candidates*, :func:`candidate_geometry`: once per imaging geometry, shared
+by the sets. What needs the light (``cos_i`` and the cast shadows) is
+:class:`LitTest`, a mask over the candidates for whatever light it is
+given; the workflow gives it the light estimated from the set's own images
+(``estimation.selection``), never the true one. :func:`dark_floor` says
+which samples an image itself shows dark, for the first selection, made
+before any light is known.
 """
 
 from __future__ import annotations
