@@ -143,7 +143,7 @@ def test_a_blank_set_is_a_table1_row_with_its_reason(small_set, tmp_path):
     with pytest.raises(DataFailure, match="3 of 3 images are blank"):
         read_rendered_images(small_set)
     # The observe stage records it (the geometry file is never read), the fit passes it on.
-    write_observations(tmp_path / "never_read.npz", small_set, tmp_path / "blank_obs.npz")
+    write_observations(tmp_path / "never_read.npz", small_set, tmp_path / "never_read_shape.npz", tmp_path / "never_read.json", {}, tmp_path / "blank_obs.npz")
     blank_set = ImageSet(10.0, 0.5, 0.8)
     fit_set(tmp_path / "blank_obs.npz", blank_set, "koizumi_lm", tmp_path / "blank.npz", tmp_path / "blank.json", blank_set.set_id)
     row = json.loads((tmp_path / "blank.json").read_text())

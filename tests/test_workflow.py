@@ -33,8 +33,8 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["render"] == 32
     assert jobs["add_noise"] == 48
     assert jobs["fit"] == (16 + 16 + 48) * 3
-    # Table 1's two light angles, and the six more of the phase sweep.
-    assert jobs["observation_geometry"] == 2 + 6
+    # One imaging geometry: its candidate observations need no light (each set selects with its estimated light).
+    assert jobs["observation_geometry"] == 1
     assert jobs["reconstruct"] == 2 * 16 * 2  # two conditions, with and without priors
     assert jobs["refine_cloud"] == 2 * 16 * 2
     # Table 2 under two imaging conditions (ideal, amica): a mission set per condition and base set.

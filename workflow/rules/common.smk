@@ -56,11 +56,11 @@ def reconstruction_settings(stage):
     return stage_settings(config["reconstruction"], stage)
 
 
-LIGHT_TAGS = sorted({s.light_tag for s in SETS.values()})
-# The model-mismatch experiment's sets ({name: (law, light angle)}), and the light angle of every light tag.
+# The model-mismatch experiment's sets ({name: (law, light angle)}).
 MODEL_SETS = model_sets(config["model_mismatch"], config["light_angles_deg"]) if config["model_mismatch"]["enabled"] else {}
-LIGHT_ANGLE_OF_TAG = {s.light_tag: s.light_angle_deg for s in SETS.values()}
-LIGHT_ANGLE_OF_TAG.update({f"light{angle:g}": angle for _, angle in MODEL_SETS.values()})
+# The observation keys the candidate observations depend on (no light: the incidence cut is made per set,
+# with the light estimated from its images), so that a change to min_cos_incidence leaves them standing.
+CANDIDATE_SETTINGS = {key: value for key, value in config["observations"].items() if key != "min_cos_incidence"}
 ESTIMATORS = config["estimators"]
 
 # The disk and memory the configured run needs, against what this machine
@@ -82,7 +82,6 @@ RENDERED_SET = f"light[^/_]+_albedo[^/_]+_k[^/_]+(_map-{NAME})?"
 
 wildcard_constraints:
     set_id=f"{RENDERED_SET}(_noise-{NAME})?",
-    light_tag="light[^/_]+",
     method="|".join(ESTIMATORS),
     sweep="|".join(SWEEPS) or "none",
     priors="on|off",
@@ -111,11 +110,6 @@ def split_noisy_set(set_id):
     """``(clean_id, level)`` of a noisy set's id."""
     clean_id, level = set_id.rsplit("_noise-", 1)
     return clean_id, level
-
-
-def observation_geometry_of_set(wildcards):
-    """The observation geometry of a set's light angle."""
-    return rules.observation_geometry.output.npz.format(light_tag=SETS[wildcards.set_id].light_tag)
 
 
 def image_set(wildcards):
@@ -179,10 +173,6 @@ def model_set_law(wildcards):
 
 def model_set_angle(wildcards):
     return MODEL_SETS[wildcards.model_set][1]
-
-
-def model_set_geometry(wildcards):
-    return f"results/observations/geometry_light{MODEL_SETS[wildcards.model_set][1]:g}.npz"
 
 
 def model_set_seed(wildcards):

@@ -28,13 +28,16 @@ rule render_model_set:
 
 rule fit_model_set:
     input:
-        geometry=model_set_geometry,
+        geometry=rules.observation_geometry.output.npz,
         images=rules.render_model_set.output.images,
+        shape=rules.prepare_shape.output.npz,
+        cameras=rules.imaging_geometry.output.cameras,
     output:
         json="results/models/fits/{model_set}.json",
     params:
         law=model_set_law,
         light_angle_deg=model_set_angle,
+        observations=config["observations"],
         settings={key: MODEL_SETTINGS[key] for key in ("models", "parameters", "fit", "cross_fit_points", "max_iterations", "fisher_sigma")},
         sensor=MODEL_SENSOR,
         seed=model_set_seed,
@@ -50,12 +53,15 @@ rule fit_model_set:
 
 rule phase_sweep_set:
     input:
-        geometry=model_set_geometry,
+        geometry=rules.observation_geometry.output.npz,
         images=rules.render_model_set.output.images,
+        shape=rules.prepare_shape.output.npz,
+        cameras=rules.imaging_geometry.output.cameras,
     output:
         json="results/models/phase_sweep/{model_set}.json",
     params:
         light_angle_deg=model_set_angle,
+        observations=config["observations"],
     log:
         "logs/phase_sweep_set/{model_set}.log",
     benchmark:

@@ -4,8 +4,10 @@
 
 rule noise_monte_carlo:
     input:
-        geometry=observation_geometry_of_set,
+        geometry=rules.observation_geometry.output.npz,
         images=RENDERED_SET_DIR,
+        shape=rules.prepare_shape.output.npz,
+        cameras=rules.imaging_geometry.output.cameras,
     output:
         csv="results/noise_monte_carlo/{set_id}.csv",
     params:
@@ -13,6 +15,7 @@ rule noise_monte_carlo:
         sensor=lambda wildcards: named_entry(config, "noise_levels", config["noise_monte_carlo"]["level"]),
         seed=monte_carlo_seed,
         realisations=config["noise_monte_carlo"]["realisations"],
+        observations=config["observations"],
     threads: 1
     log:
         "logs/noise_monte_carlo/{set_id}.log",

@@ -1,4 +1,5 @@
-# Stage 3: which points each image sees on a pure pixel, then their brightness.
+# Stage 3: which points each image sees on a pure pixel (no light needed), then
+# their brightness and the selection made with the light estimated from it.
 
 
 rule observation_geometry:
@@ -6,15 +7,14 @@ rule observation_geometry:
         shape=rules.prepare_shape.output.npz,
         cameras=rules.imaging_geometry.output.cameras,
     output:
-        npz="results/observations/geometry_{light_tag}.npz",
+        npz="results/observations/geometry.npz",
     params:
-        light_angle_deg=lambda wildcards: LIGHT_ANGLE_OF_TAG[wildcards.light_tag],
-        observations=config["observations"],
+        observations=CANDIDATE_SETTINGS,
     threads: 2
     log:
-        "logs/observation_geometry/{light_tag}.log",
+        "logs/observation_geometry.log",
     benchmark:
-        "benchmarks/observation_geometry/{light_tag}.tsv"
+        "benchmarks/observation_geometry.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:
@@ -23,10 +23,14 @@ rule observation_geometry:
 
 rule observe:
     input:
-        geometry=observation_geometry_of_set,
+        geometry=rules.observation_geometry.output.npz,
         images=rules.render.output.images,
+        shape=rules.prepare_shape.output.npz,
+        cameras=rules.imaging_geometry.output.cameras,
     output:
         npz="results/observations/{set_id}.npz",
+    params:
+        observations=config["observations"],
     log:
         "logs/observe/{set_id}.log",
     benchmark:

@@ -37,7 +37,7 @@ rule tabulate_runtime:
     input:
         benchmarks=lambda wildcards: [
             *expand(rules.render.benchmark, set_id=[i for i, s in SETS.items() if not s.noise_level]),
-            *expand(rules.observation_geometry.benchmark, light_tag=LIGHT_ANGLE_OF_TAG),
+            rules.observation_geometry.benchmark,
             *[rules.add_noise.benchmark.format(clean_id=clean_id, level=level) for clean_id, level in map(split_noisy_set, SWEEPS.get("noise", []))],
             *expand(rules.observe.benchmark, set_id=SETS),
             *expand(rules.fit.benchmark, set_id=SETS, method=ESTIMATORS),

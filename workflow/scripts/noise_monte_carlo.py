@@ -7,6 +7,9 @@ from asteroid_photometry.experiments.monte_carlo import noise_monte_carlo_set
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 noise_monte_carlo_set(
     snakemake.input.geometry,  # noqa: F821
+    snakemake.input.shape,  # noqa: F821
+    snakemake.input.cameras,  # noqa: F821
+    snakemake.params.observations,  # noqa: F821
     snakemake.input.images,  # noqa: F821
     snakemake.params.sensor,  # noqa: F821
     snakemake.params.seed,  # noqa: F821

@@ -1,4 +1,4 @@
-"""Rule script: the pure-pixel observations of every facet for one light angle."""
+"""Rule script: the candidate observations of the imaging geometry (pure pixels, no light needed)."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.core.logs import setup_logging
@@ -8,7 +8,6 @@ setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: direct
 write_observation_geometry(
     snakemake.input.shape,  # noqa: F821
     snakemake.input.cameras,  # noqa: F821
-    snakemake.params.light_angle_deg,  # noqa: F821
     snakemake.params.observations,  # noqa: F821
     snakemake.output.npz,  # noqa: F821
 )

@@ -5,4 +5,12 @@ from asteroid_photometry.core.logs import setup_logging
 from asteroid_photometry.experiments.mismatch import phase_sweep_set
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
-phase_sweep_set(snakemake.input.geometry, snakemake.input.images, snakemake.params.light_angle_deg, snakemake.output.json)  # noqa: F821
+phase_sweep_set(
+    snakemake.input.geometry,  # noqa: F821
+    snakemake.input.shape,  # noqa: F821
+    snakemake.input.cameras,  # noqa: F821
+    snakemake.input.images,  # noqa: F821
+    snakemake.params.light_angle_deg,  # noqa: F821
+    snakemake.params.observations,  # noqa: F821
+    snakemake.output.json,  # noqa: F821
+)

@@ -25,7 +25,7 @@ BYTES_PER_PIXEL = {
     "render_noisy": 1.74,  # noise leaves little to compress
     "observations": 0.17,
     "fits": 0.011,  # per estimator
-    "observation_geometry": 0.15,  # per light angle
+    "observation_geometry": 0.15,  # once: the candidate observations need no light
     "reconstruction": 0.57,  # per prior setting: 8-bit images, COLMAP database, model
     "cloud": 0.046,  # per prior setting: registration, refined cloud, cloud fits
 }
@@ -76,14 +76,13 @@ def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estima
     pixels = config["n_images"] * config["image_size"] ** 2
     noisy = sum(1 for s in sets.values() if s.noise_level)
     base = sum(1 for s in sets.values() if s.is_base)
-    lights = len({s.light_tag for s in sets.values()})
     conditions = {"ideal": {}} if conditions is None else conditions
     noisy_conditions = sum(1 for entry in conditions.values() if entry.get("sensor_level"))
     runs = base * len(conditions) * n_prior_settings  # reconstructions of Table 2
     per_set = {
         "rendered images": BYTES_PER_PIXEL["render"] * (len(sets) - noisy + n_model_sets) + BYTES_PER_PIXEL["render_noisy"] * noisy,
         "observations and fits": BYTES_PER_PIXEL["observations"] * len(sets) + BYTES_PER_PIXEL["fits"] * len(sets) * n_estimators
-        + BYTES_PER_PIXEL["observation_geometry"] * lights,
+        + BYTES_PER_PIXEL["observation_geometry"],
         "mission sets": (BYTES_PER_PIXEL["render"] * (len(conditions) - noisy_conditions) + BYTES_PER_PIXEL["render_noisy"] * noisy_conditions) * base
         if n_prior_settings else 0.0,
         "reconstructions": BYTES_PER_PIXEL["reconstruction"] * runs,

@@ -25,7 +25,7 @@ from asteroid_photometry.estimation import angle_between_deg, FitResult, light_a
 TABLE1_COLUMNS = [
     "set_id", "method", "status", "light_deg_true", "light_deg_est", "light_deg_err", "light_dir_err_deg",
     "albedo_true", "albedo_est", "albedo_err", "albedo_rmse", "k_true", "k_est", "k_err", "k_rmse",
-    "n_points", "n_obs", "converged",
+    "n_points", "n_obs", "converged", "selection_passes", "selection_converged", "selection_equals_true", "selection_differences",
 ]
 
 #: Wall-clock columns (``fit_seconds``, ``refit_seconds``, ...) of the per-fit summaries: they change from
@@ -77,6 +77,16 @@ def summary_row(set_id: str, result: FitResult, truth: Truth) -> dict:
         "converged": bool(result.success),
     }
     return row
+
+
+def selection_agreement(selected: np.ndarray, selected_by_true_light: np.ndarray) -> dict:
+    """Scoring of a selection made with an estimated light: is it the one the true light makes?
+
+    Both are boolean masks over the same candidate observations.
+    ``selection_differences`` counts the observations only one of them keeps.
+    """
+    differences = int(np.count_nonzero(np.asarray(selected, bool) != np.asarray(selected_by_true_light, bool)))
+    return {"selection_equals_true": differences == 0, "selection_differences": differences}
 
 
 def _rows_with_status(summary_paths) -> pd.DataFrame:
@@ -145,6 +155,7 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
             )
         worst = group.loc[:, ["light_deg_err", "light_dir_err_deg", "albedo_err", "k_err", "albedo_rmse", "k_rmse"]].abs().max()
         lines += ["", "Worst over the sets (absolute): " + ", ".join(f"{name} {value:.2g}" for name, value in worst.items()), ""]
+        lines += _selection_lines(group)
     paper_worst = (paper["light_deg_est"] - paper["light_deg_true"]).abs().max()
     lines += [
         f"The paper's worst: light {paper_worst:.3f} deg, albedo {(paper['albedo_est'] - paper['albedo_true']).abs().max():.3f}, "
@@ -152,6 +163,22 @@ def table1_markdown(table: pd.DataFrame, paper: pd.DataFrame) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _selection_lines(group: pd.DataFrame) -> list[str]:
+    """How the sets' observations were selected (with the estimated light), and whether the true light selects the same."""
+    selected = group[(group.status == OK) & group.selection_passes.notna()] if "selection_passes" in group else group.iloc[:0]
+    if not len(selected):
+        return []
+    passes = selected.selection_passes
+    same = selected.selection_equals_true.astype(bool)
+    return [
+        f"Observations selected with the light estimated from the images in {passes.min():.0f} to {passes.max():.0f} passes "
+        f"({int(selected.selection_converged.astype(bool).sum())} of {len(selected)} sets settled); the true light selects the same "
+        f"observations in {int(same.sum())} of {len(selected)} sets"
+        + (f" (at most {selected.selection_differences.max():.0f} differ)." if not same.all() else "."),
+        "",
+    ]
 
 
 def collect_sweep(summary_paths) -> pd.DataFrame:

@@ -83,10 +83,22 @@ def render_model_set(shape_npz, cameras_json, model: str, params: dict, light_an
     files.move_into_place(part, out_dir)
 
 
-def _sampled_observations(geometry_npz, render_dir) -> tuple[Observations, dict]:
+def _sampled_observations(geometry_npz, shape_npz, cameras_json, thresholds: dict, light_angle_deg: float, render_dir) -> tuple[Observations, dict]:
+    """The set's brightness at the candidate observations that the set's design light selects.
+
+    The selection is Table 1's (incidence cut, cast shadows) made with the
+    light the set was designed with (``light_angle_deg``, the config's), not
+    with an estimate: a Minnaert fit of another law's images is degrees off,
+    and its selection would mix a misplaced terminator and shadow edges
+    into what this experiment measures, the law's mismatch.
+    """
+    from asteroid_photometry.experiments.table1 import load_lit_test
     from asteroid_photometry.world.images import read_rendered_images
 
-    obs_geometry = observe.ObservationGeometry.load(geometry_npz)
+    candidates = observe.ObservationGeometry.load(geometry_npz)
+    lit = load_lit_test(shape_npz, cameras_json, candidates, thresholds)
+    keep = observe.enough_observations(candidates.point_index, lit(cameras.light_dir_cam(light_angle_deg)), candidates.n_points, thresholds["min_observations_per_point"])
+    obs_geometry = candidates.subset(keep)
     frames, images = read_rendered_images(render_dir)
     if "bsdf" not in frames:
         raise ValueError(f"{render_dir}/frames.json has no 'bsdf': not a set of the model-mismatch experiment")
@@ -172,9 +184,12 @@ def fisher_rows(obs: Observations, model: str, truth: dict, placement: dict, lig
     return rows
 
 
-def fit_model_set(geometry_npz, render_dir, model: str, light_angle_deg: float, settings: dict, sensor_entry: dict | None, seed: int, out_json) -> None:
-    """Identity fit, cross-fits (noiseless and noisy) and Fisher rows of one rendered set; see the module docstring."""
-    obs, frames = _sampled_observations(geometry_npz, render_dir)
+def fit_model_set(geometry_npz, shape_npz, cameras_json, render_dir, model: str, light_angle_deg: float, thresholds: dict, settings: dict, sensor_entry: dict | None, seed: int, out_json) -> None:
+    """Identity fit, cross-fits (noiseless and noisy) and Fisher rows of one rendered set; see the module docstring.
+
+    ``thresholds``: the config's ``observations`` (the selection, :func:`_sampled_observations`).
+    """
+    obs, frames = _sampled_observations(geometry_npz, shape_npz, cameras_json, thresholds, light_angle_deg, render_dir)
     light = truth_lib.true_light(frames)
     truth = {key: value for key, value in frames["bsdf"].items() if key not in ("type", "model")}
     base = {"render_model": model, "light_angle_deg": light_angle_deg}
@@ -213,9 +228,9 @@ def fit_model_set(geometry_npz, render_dir, model: str, light_angle_deg: float, 
     files.write_json(out_json, rows)
 
 
-def phase_sweep_set(geometry_npz, render_dir, light_angle_deg: float, out_json) -> None:
+def phase_sweep_set(geometry_npz, shape_npz, cameras_json, render_dir, light_angle_deg: float, thresholds: dict, out_json) -> None:
     """The paper's Minnaert fit on one Hapke set, from its images and directly from the Hapke law over the same samples."""
-    obs, frames = _sampled_observations(geometry_npz, render_dir)
+    obs, frames = _sampled_observations(geometry_npz, shape_npz, cameras_json, thresholds, light_angle_deg, render_dir)
     if frames["bsdf"]["model"] != "hapke":
         raise ValueError(f"{render_dir}: the phase sweep needs a Hapke set, this one is {frames['bsdf']['model']!r}")
     light = truth_lib.true_light(frames)

@@ -25,6 +25,7 @@ from asteroid_photometry.core.failures import (
     write_failed_npz,
     write_status_json,
 )
+from asteroid_photometry.estimation import selection
 from asteroid_photometry.estimation.registry import load_observations, require_observations, run_estimator
 from asteroid_photometry.evaluation import metrics, truth
 from asteroid_photometry.evaluation.truth import truth_from_arrays
@@ -108,53 +109,122 @@ def add_noise_to_set(clean_dir, sensor_entry: dict, seed: int, out_dir) -> None:
     log.info("sensor %s on %d images (seed %d): %d saturated pixels", sensor.to_dict(), len(images), seed, n_saturated)
 
 
-def write_observation_geometry(shape_npz, cameras_json, light_angle_deg, thresholds: dict, out_npz) -> None:
+#: The estimator whose light selects every set's observations (select, fit, reselect; ``estimation.selection``).
+#: One for all of Table 1's estimators, so that they are compared on the same observations: varpro, as it
+#: weighs a noisy set's observations by their variance (the maximum-likelihood light) and needs no known k
+#: (``iwano_linear`` assumes one, and its light is degrees off on a varying surface).
+SELECTION_ESTIMATOR = "varpro"
+
+
+def write_observation_geometry(shape_npz, cameras_json, thresholds: dict, out_npz) -> None:
+    """The candidate observations of the imaging geometry: what needs no light (``observe.candidate_geometry``)."""
     shape = load_shape_npz(shape_npz)
     geometry = load_imaging_geometry(cameras_json)
-    obs_geometry = observe.observation_geometry(
+    candidates = observe.candidate_geometry(
         shape["vertices_m"], shape["faces"], shape["centroids_m"], shape["normals"], geometry,
-        cameras.light_dir_cam(light_angle_deg),
-        min_cos_incidence=thresholds["min_cos_incidence"],
         min_cos_emission=thresholds["min_cos_emission"],
         min_observations_per_point=thresholds["min_observations_per_point"],
         pixel_selection=thresholds.get("pixel_selection", "pure"),
     )
-    obs_geometry.save(out_npz)
+    candidates.save(out_npz)
 
 
-def observation_arrays(obs_geometry: observe.ObservationGeometry, frames: dict, images: list[np.ndarray], render_dir) -> dict:
-    """Every observation's brightness sampled from ``images``, with its geometry and the truth, as arrays.
+def load_lit_test(shape_npz, cameras_json, candidates: observe.ObservationGeometry, thresholds: dict) -> observe.LitTest:
+    """The light's part of the selection (incidence cut, cast shadows) for the candidates ``candidates``."""
+    shape = load_shape_npz(shape_npz)
+    return observe.LitTest(
+        shape["vertices_m"], shape["faces"], shape["centroids_m"], shape["normals"], load_imaging_geometry(cameras_json), candidates,
+        min_cos_incidence=thresholds["min_cos_incidence"], pixel_selection=thresholds.get("pixel_selection", "pure"),
+    )
 
-    ``frames`` is the set's ``frames.json``; with a ``sensor`` entry (a noisy
-    set) saturated and zero samples are dropped and each observation gets its
-    variance, as a real pipeline that knows its sensor would do.
+
+def select_observations(candidates: observe.ObservationGeometry, brightness, first, usable, variance, lit: observe.LitTest, min_observations_per_point: int) -> selection.Selection:
+    """The candidates' selection made with the light estimated from their own brightness (no true light).
+
+    First the light-free selection ``first`` (a mask over the candidates),
+    then, with each fitted light, the ``usable`` samples (not saturated)
+    that it lights (``lit``); every selection keeps the points seen at
+    least ``min_observations_per_point`` times. Fitted by
+    :data:`SELECTION_ESTIMATOR`, weighted by ``variance`` when given.
     """
-    if max(obs_geometry.image_index, default=-1) >= len(images):
-        raise DataFailure(f"the set has {len(images)} images but the imaging geometry observes image {obs_geometry.image_index.max()}")
-    brightness = observe.sample_brightness(obs_geometry, images)
-    arrays = {name: getattr(obs_geometry, name) for name in obs_geometry.__dataclass_fields__}
-    if "sensor" in frames:
-        sensor = noise.sensor_from_config(frames["sensor"])
-        keep = ~noise.saturated(brightness, sensor) & (brightness > 0)
-        log.info("dropping %d saturated or zero observations of %d", int((~keep).sum()), len(keep))
-        arrays = {name: (value[keep] if isinstance(value, np.ndarray) and value.shape[:1] == keep.shape else value) for name, value in arrays.items()}
-        brightness = brightness[keep]
-        arrays["variance"] = noise.observation_variance(brightness, sensor)
+    n_points = candidates.n_points
+
+    def enough(mask):
+        return observe.enough_observations(candidates.point_index, mask, n_points, min_observations_per_point)
+
+    def fit_light(mask):
+        obs = estimation.Observations(
+            point_index=candidates.point_index[mask], normal_cam=candidates.normal_cam[mask], view_cam=candidates.view_cam[mask],
+            brightness=brightness[mask], n_points=n_points,
+        )
+        require_observations(obs)
+        return run_estimator(obs, SELECTION_ESTIMATOR, variance=None if variance is None else variance[mask]).light_dir_cam
+
+    return selection.select_with_estimated_light(enough(first), fit_light, lambda light: enough(usable & lit(light)))
+
+
+def observation_arrays(candidates: observe.ObservationGeometry, frames: dict, images: list[np.ndarray], render_dir, lit: observe.LitTest, min_observations_per_point: int) -> dict:
+    """The observations selected with the estimated light, their brightness sampled from ``images``, and the truth, as arrays.
+
+    ``candidates`` are the light-free observations (``write_observation_geometry``);
+    :func:`select_observations` chooses among them. ``frames`` is the set's
+    ``frames.json``; with a ``sensor`` entry (a noisy set) saturated and
+    zero samples are never selected and each observation gets its variance,
+    as a real pipeline that knows its sensor would do. After the selection,
+    for scoring only: the truth, and whether the true light would have
+    selected the same observations.
+    """
+    if max(candidates.image_index, default=-1) >= len(images):
+        raise DataFailure(f"the set has {len(images)} images but the imaging geometry observes image {candidates.image_index.max()}")
+    brightness = observe.sample_brightness(candidates, images)
+    sensor = noise.sensor_from_config(frames["sensor"]) if "sensor" in frames else None
+    usable = np.ones(len(brightness), dtype=bool)
+    variance = None
+    if sensor is not None:
+        usable = ~noise.saturated(brightness, sensor) & (brightness > 0)
+        log.info("%d of %d candidate samples saturated or zero, never selected", int((~usable).sum()), len(usable))
+        variance = noise.observation_variance(brightness, sensor)
+    floor = observe.dark_floor(brightness[usable], sensor)
+    first = usable & (brightness > floor)
+    log.info("%d of %d candidate samples dark (brightness <= %.3g: cast shadow or unlit), left out of the first selection", int((usable & ~first).sum()), len(first), floor)
+    chosen = select_observations(candidates, brightness, first, usable, variance, lit, min_observations_per_point)
+    mask = chosen.mask
+    arrays = {name: getattr(candidates, name)[mask] for name in candidates.__dataclass_fields__ if name != "n_points"}
+    arrays.update(n_points=candidates.n_points, brightness=brightness[mask], selection_passes=chosen.passes,
+                  selection_converged=chosen.converged, light_dir_cam_selection=chosen.light_dir_cam)
+    if sensor is not None:
+        arrays["variance"] = variance[mask]
         arrays["sensor_json"] = np.str_(json.dumps(sensor.to_dict()))
-    else:
-        dark = int((brightness <= 0).sum())
-        if dark:
-            log.warning("%d of %d observations are dark in the rendered image although the geometry says lit", dark, len(brightness))
-    albedo_true, k_true = truth.facet_albedo_and_k(frames, render_dir, np.arange(obs_geometry.n_points))
-    log.info("%d observations of %d points from %d images", len(brightness), len(np.unique(arrays["point_index"])), len(images))
-    return dict(arrays, brightness=brightness, light_dir_cam_true=truth.true_light(frames), albedo_true=albedo_true, minnaert_k_true=k_true)
+    elif (dark := int((brightness[mask] <= floor).sum())):
+        log.warning("%d of %d selected observations are dark in the image although the estimated light says lit", dark, int(mask.sum()))
+    # Scoring only, after the selection is made: the truth, and the selection the true light would make.
+    light_true = truth.true_light(frames)
+    agreement = metrics.selection_agreement(mask, observe.enough_observations(candidates.point_index, usable & lit(light_true), candidates.n_points, min_observations_per_point))
+    albedo_true, k_true = truth.facet_albedo_and_k(frames, render_dir, np.arange(candidates.n_points))
+    log.info(
+        "%d observations of %d points from %d images, selected in %d passes; %s",
+        int(mask.sum()), len(np.unique(arrays["point_index"])), len(images), chosen.passes,
+        "the true light selects the same" if agreement["selection_equals_true"] else f"the true light's selection differs in {agreement['selection_differences']} observations",
+    )
+    return dict(arrays, **agreement, light_dir_cam_true=light_true, albedo_true=albedo_true, minnaert_k_true=k_true)
 
 
-def write_observations(geometry_npz, render_dir, out_npz) -> None:
-    """The brightness of every observation, sampled from the rendered images, with its geometry (or the set's failure)."""
+def selection_columns(arrays: dict) -> dict:
+    """The summary columns of a set's selection: its passes, whether it converged and (scoring) whether the true light selects the same.
+
+    None for observations made without a selection (a test's synthetic ones).
+    """
+    kinds = {"selection_passes": int, "selection_converged": bool, "selection_equals_true": bool, "selection_differences": int}
+    return {name: kind(arrays[name]) for name, kind in kinds.items() if name in arrays}
+
+
+def write_observations(geometry_npz, render_dir, shape_npz, cameras_json, thresholds: dict, out_npz) -> None:
+    """The observations selected with the estimated light, their brightness and geometry (or the set's failure)."""
     try:
         frames, images = read_rendered_images(render_dir)
-        arrays = observation_arrays(observe.ObservationGeometry.load(geometry_npz), frames, images, render_dir)
+        candidates = observe.ObservationGeometry.load(geometry_npz)
+        lit = load_lit_test(shape_npz, cameras_json, candidates, thresholds)
+        arrays = observation_arrays(candidates, frames, images, render_dir, lit, thresholds["min_observations_per_point"])
     except DataFailure as failure:
         write_failed_npz(out_npz, record("observe", failure))
         return
@@ -187,7 +257,7 @@ def _fit_set(observations_npz, image_set: ImageSet, method: str, out_estimates, 
     log.info("%s: %s after %d iterations, %.2f s: %s", method, "converged" if result.success else "NOT converged", result.n_iterations, result.fit_seconds, result.message)
     truth = truth_from_arrays(arrays)
     row = metrics.summary_row(set_id, result, truth)
-    row.update(status=table_status(), noise_level=image_set.noise_level, surface_map=image_set.surface_map)
+    row.update(status=table_status(), noise_level=image_set.noise_level, surface_map=image_set.surface_map, **selection_columns(arrays))
     if "sensor_json" in arrays and method != "iwano_linear":  # the bound is for per-point albedo and k
         row.update(cramer_rao_summary(obs, arrays, result))
     if getattr(result, "light_std_deg", None) is not None and np.isfinite(getattr(result, "light_std_deg", np.nan)):

@@ -212,3 +212,16 @@ def observation_variance(brightness, sensor: SensorModel):
 def saturated(values, sensor: SensorModel) -> np.ndarray:
     """Where ``apply_sensor_noise``'s output sits at the ADC's top code: the true value is unknown there."""
     return np.asarray(values) >= sensor.max_code * sensor.electrons_per_dn / sensor.gain_e_per_radiance
+
+
+#: A zero signal reads above ``DARK_SIGMA`` standard deviations of its own noise with probability under 3e-7.
+DARK_SIGMA = 5.0
+
+
+def dark_level(sensor: SensorModel, n_sigma: float = DARK_SIGMA) -> float:
+    """The radiance a dark pixel (no light) stays below but for one in millions: ``n_sigma`` times its noise.
+
+    A zero signal has no shot noise: read noise and quantisation only,
+    ``sqrt((read_noise_e / gain)**2 + q**2 / 12)``.
+    """
+    return float(n_sigma * np.sqrt(observation_variance(0.0, sensor)))

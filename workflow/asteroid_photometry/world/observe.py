@@ -18,7 +18,8 @@ ray casting with open3d on the body-frame mesh:
   a pixel that touches none of its corners could slip through; at the
   default 1.2 m pixels and 4.7 m facets none does);
 - lit, with no cast shadow: rays from the centroid and from points near the
-  three vertices towards the Sun all escape;
+  three vertices towards the Sun all escape, and (pure pixels) rays from
+  where the pixel's corners and centre meet the facet;
 - not grazing: ``cos_i >= min_cos_incidence`` and ``cos_o >= min_cos_emission``.
 
 With ``pixel_selection: projection`` the pixel is instead the one that
@@ -26,9 +27,14 @@ contains the centroid's projection, whenever the ray through its centre
 hits the facet, mixed or not, as the paper did; it exists to measure what
 mixed pixels cost (docs/method.md, "Mixed and pure pixels").
 
-The geometry of the observations (which point, which pixel, the normal and
-view direction in the camera frame) depends on the light only through the
-shadows, so it is computed once per light angle and shared by the sets.
+The tests split in two. What needs no light (coverage, ``cos_o``) gives the
+*candidates*, :func:`candidate_geometry`: once per imaging geometry, shared
+by the sets. What needs the light (``cos_i`` and the cast shadows) is
+:class:`LitTest`, a mask over the candidates for whatever light it is
+given; the workflow gives it the light estimated from the set's own images
+(``estimation.selection``), never the true one. :func:`dark_floor` says
+which samples an image itself shows dark, for the first selection, made
+before any light is known.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from asteroid_photometry.core import files
+from asteroid_photometry.world import noise
 from asteroid_photometry.world.cameras import camera_centres_body, ImagingGeometry, pixel_rays_cam, project
 
 log = logging.getLogger(__name__)
@@ -67,7 +74,14 @@ class ObservationGeometry:
     @classmethod
     def load(cls, path) -> "ObservationGeometry":
         with np.load(path) as data:
-            return cls(**{name: data[name] for name in cls.__dataclass_fields__})
+            arrays = {name: data[name] for name in cls.__dataclass_fields__}
+        return cls(**dict(arrays, n_points=int(arrays["n_points"])))
+
+    def subset(self, rows) -> "ObservationGeometry":
+        """The observations ``rows`` (a boolean mask or indices), in that order."""
+        return ObservationGeometry(n_points=self.n_points, **{
+            name: getattr(self, name)[rows] for name in self.__dataclass_fields__ if name != "n_points"
+        })
 
 
 class BodyRaycaster:
@@ -184,6 +198,106 @@ def pixel_footprint_unshadowed(raycaster: BodyRaycaster, geometry: ImagingGeomet
     return ~raycaster.occluded(starts, np.broadcast_to(light_dir_body, starts.shape)).any(axis=1)
 
 
+def candidate_geometry(
+    vertices_m: np.ndarray,
+    faces: np.ndarray,
+    centroids_m: np.ndarray,
+    normals: np.ndarray,
+    geometry: ImagingGeometry,
+    min_cos_emission: float = 0.1,
+    min_observations_per_point: int = 4,
+    pixel_selection: str = "pure",
+) -> ObservationGeometry:
+    """The observations that need no light: every facet seen on its pixel, facing the camera.
+
+    Visibility, the pixel (``pixel_selection``: ``pure``, the default and
+    exact, or ``projection``, the pixel of the centroid's projection, mixed
+    or not) and the emission cut; points seen fewer than
+    ``min_observations_per_point`` times are left out (no light can give
+    them more). The light's part, the incidence cut and the cast shadows,
+    is :class:`LitTest`'s.
+    """
+    if pixel_selection not in PIXEL_SELECTIONS:
+        raise ValueError(f"config key 'observations.pixel_selection': {pixel_selection!r} is not one of {sorted(PIXEL_SELECTIONS)}")
+    select_pixels = PIXEL_SELECTIONS[pixel_selection]
+    raycaster = BodyRaycaster(vertices_m, faces)
+    intrinsics = geometry.intrinsics
+    kept = {name: [] for name in ("point_index", "image_index", "pixel_row", "pixel_col", "normal_cam", "view_cam")}
+    n_selected = 0
+    for image, pose in enumerate(geometry.body_to_camera):
+        rotation, translation = pose[:3, :3], pose[:3, 3]
+        facets, row, col = select_pixels(raycaster, geometry, image, centroids_m)
+        n_selected += len(facets)
+        normals_cam = normals[facets] @ rotation.T
+        if pixel_selection == "pure":
+            # The pixel averages the facet over its footprint: its view direction is that of its centre.
+            view_cam = -pixel_rays_cam(intrinsics, col + 0.5, row + 0.5)
+        else:
+            centroids_cam = centroids_m[facets] @ rotation.T + translation
+            view_cam = -centroids_cam / np.linalg.norm(centroids_cam, axis=1, keepdims=True)
+        facing = np.einsum("ij,ij->i", normals_cam, view_cam) >= min_cos_emission
+        for name, values in (("point_index", facets), ("image_index", np.full(len(facets), image, dtype=np.int64)),
+                             ("pixel_row", row), ("pixel_col", col), ("normal_cam", normals_cam), ("view_cam", view_cam)):
+            kept[name].append(values[facing])
+    arrays = {name: np.concatenate(parts) for name, parts in kept.items()}
+    candidates = ObservationGeometry(n_points=len(faces), **arrays)
+    enough = enough_observations(candidates.point_index, np.ones(len(candidates.point_index), bool), len(faces), min_observations_per_point)
+    order = np.argsort(candidates.point_index[enough], kind="stable")
+    candidates = candidates.subset(np.flatnonzero(enough)[order])
+    log.info(
+        "candidate observations over %d images: %d (facet, image) pairs with a %s pixel, %d facing the camera "
+        "(cos_o >= %g), %d on %d points seen >= %d times",
+        geometry.n_images, n_selected, pixel_selection, len(arrays["point_index"]), min_cos_emission,
+        len(candidates.point_index), len(np.unique(candidates.point_index)), min_observations_per_point,
+    )
+    return candidates
+
+
+def enough_observations(point_index: np.ndarray, mask: np.ndarray, n_points: int, min_observations_per_point: int) -> np.ndarray:
+    """``mask`` less the rows of points it keeps fewer than ``min_observations_per_point`` times."""
+    per_point = np.bincount(point_index[mask], minlength=n_points)
+    return mask & (per_point[point_index] >= min_observations_per_point)
+
+
+class LitTest:
+    """The light's part of the selection: which candidate observations a given light direction lights.
+
+    A candidate is lit when ``cos_i >= min_cos_incidence`` and its facet
+    carries no cast shadow (shadow rays from the centroid and near the three
+    vertices escape) and, for pure pixels, neither does the pixel's own
+    footprint on the facet (rays from where its corners and centre meet the
+    facet escape). The light is whatever the caller passes: an estimate
+    made from the images for the observations the estimators see.
+    """
+
+    def __init__(self, vertices_m, faces, centroids_m, normals, geometry: ImagingGeometry, candidates: ObservationGeometry,
+                 min_cos_incidence: float = 0.1, pixel_selection: str = "pure"):
+        self.raycaster = BodyRaycaster(vertices_m, faces)
+        self.vertices_m, self.faces, self.centroids_m, self.normals = vertices_m, faces, centroids_m, normals
+        self.geometry, self.candidates = geometry, candidates
+        self.min_cos_incidence, self.pixel_selection = min_cos_incidence, pixel_selection
+
+    def __call__(self, light_dir_cam) -> np.ndarray:
+        """Boolean mask over the candidates: lit by ``light_dir_cam`` (camera frame, unit vector towards the Sun)."""
+        light_dir_cam = np.asarray(light_dir_cam, dtype=float)
+        light_dir_cam = light_dir_cam / np.linalg.norm(light_dir_cam)
+        cand = self.candidates
+        lit = cand.normal_cam @ light_dir_cam >= self.min_cos_incidence
+        for image in np.unique(cand.image_index[lit]):
+            rows = np.flatnonzero(lit & (cand.image_index == image))
+            light_dir_body = self.geometry.body_to_camera[image, :3, :3].T @ light_dir_cam
+            facets = cand.point_index[rows]
+            ok = facet_unshadowed(self.raycaster, self.vertices_m, self.faces, self.centroids_m, self.normals, facets, light_dir_body)
+            if self.pixel_selection == "pure":
+                rows_ok = rows[ok]
+                ok[ok] = pixel_footprint_unshadowed(
+                    self.raycaster, self.geometry, int(image), cand.pixel_row[rows_ok], cand.pixel_col[rows_ok],
+                    self.centroids_m[facets[ok]], self.normals[facets[ok]], light_dir_body,
+                )
+            lit[rows] = ok
+        return lit
+
+
 def observation_geometry(
     vertices_m: np.ndarray,
     faces: np.ndarray,
@@ -196,63 +310,39 @@ def observation_geometry(
     min_observations_per_point: int = 4,
     pixel_selection: str = "pure",
 ) -> ObservationGeometry:
-    """The observations of every facet centroid in every image (see module docstring).
+    """The observations of every facet centroid in every image under a known light (see module docstring).
 
-    ``pixel_selection`` is ``pure`` (the default, exact) or ``projection``
-    (the pixel of the centroid's projection, mixed or not).
+    :func:`candidate_geometry` and then :class:`LitTest` with
+    ``light_dir_cam``. The workflow's observations are selected with a light
+    estimated from the images instead (``estimation.selection``); this
+    one-step form serves the tests and the experiments that hold the light.
     """
-    if pixel_selection not in PIXEL_SELECTIONS:
-        raise ValueError(f"config key 'observations.pixel_selection': {pixel_selection!r} is not one of {sorted(PIXEL_SELECTIONS)}")
-    select_pixels = PIXEL_SELECTIONS[pixel_selection]
-    raycaster = BodyRaycaster(vertices_m, faces)
-    intrinsics = geometry.intrinsics
-    n_facets = len(faces)
-    kept = {name: [] for name in ("point_index", "image_index", "pixel_row", "pixel_col", "normal_cam", "view_cam")}
-    counts = dict(selected=0, facing=0, lit=0)
-    for image, pose in enumerate(geometry.body_to_camera):
-        rotation, translation = pose[:3, :3], pose[:3, 3]
-        facets, row, col = select_pixels(raycaster, geometry, image, centroids_m)
-        counts["selected"] += len(facets)
-        normals_cam = normals[facets] @ rotation.T
-        if pixel_selection == "pure":
-            # The pixel averages the facet over its footprint: its view direction is that of its centre.
-            view_cam = -pixel_rays_cam(intrinsics, col + 0.5, row + 0.5)
-        else:
-            centroids_cam = centroids_m[facets] @ rotation.T + translation
-            view_cam = -centroids_cam / np.linalg.norm(centroids_cam, axis=1, keepdims=True)
-        cos_emission = np.einsum("ij,ij->i", normals_cam, view_cam)
-        cos_incidence = normals_cam @ light_dir_cam
-        candidate = (cos_emission >= min_cos_emission) & (cos_incidence >= min_cos_incidence)
-        counts["facing"] += int(candidate.sum())
-        light_dir_body = rotation.T @ light_dir_cam
-        candidate[candidate] = facet_unshadowed(raycaster, vertices_m, faces, centroids_m, normals, facets[candidate], light_dir_body)
-        if pixel_selection == "pure":
-            lit = facets[candidate]
-            candidate[candidate] = pixel_footprint_unshadowed(
-                raycaster, geometry, image, row[candidate], col[candidate], centroids_m[lit], normals[lit], light_dir_body,
-            )
-        counts["lit"] += int(candidate.sum())
+    candidates = candidate_geometry(vertices_m, faces, centroids_m, normals, geometry, min_cos_emission, min_observations_per_point, pixel_selection)
+    lit = LitTest(vertices_m, faces, centroids_m, normals, geometry, candidates, min_cos_incidence, pixel_selection)(light_dir_cam)
+    keep = enough_observations(candidates.point_index, lit, candidates.n_points, min_observations_per_point)
+    log.info("%d of %d candidate observations lit and unshadowed, %d kept", int(lit.sum()), len(lit), int(keep.sum()))
+    return candidates.subset(keep)
 
-        kept["point_index"].append(facets[candidate])
-        kept["image_index"].append(np.full(int(candidate.sum()), image, dtype=np.int64))
-        kept["pixel_row"].append(row[candidate])
-        kept["pixel_col"].append(col[candidate])
-        kept["normal_cam"].append(normals_cam[candidate])
-        kept["view_cam"].append(view_cam[candidate])
 
-    arrays = {name: np.concatenate(parts) for name, parts in kept.items()}
-    per_point = np.bincount(arrays["point_index"], minlength=n_facets)
-    enough = per_point[arrays["point_index"]] >= min_observations_per_point
-    order = np.argsort(arrays["point_index"][enough], kind="stable")
-    arrays = {name: values[enough][order] for name, values in arrays.items()}
-    log.info(
-        "observations over %d images: %d (facet, image) pairs with a %s pixel, %d of them facing camera and Sun "
-        "(cos >= thresholds), %d without cast shadow, "
-        "%d kept on %d points with >= %d observations",
-        geometry.n_images, counts["selected"], pixel_selection, counts["facing"], counts["lit"], len(arrays["point_index"]),
-        int((per_point >= min_observations_per_point).sum()), min_observations_per_point,
-    )
-    return ObservationGeometry(n_points=n_facets, **arrays)
+#: A sample is dark at or below this fraction of the samples' 99th percentile of brightness (and, in a noisy
+#: image, at or below ``noise.dark_level``). The lit samples the incidence cut keeps are far brighter:
+#: ``albedo cos_i**k cos_o**(k - 1) >= albedo min_cos_incidence**k``, 0.05 at albedo 0.5, k 1, cos_i 0.1,
+#: against about 0.006 for the default sets' floor.
+DARK_FRACTION = 0.01
+
+
+def dark_floor(brightness: np.ndarray, sensor=None) -> float:
+    """The brightness at or below which a sample counts as dark: in cast shadow or turned from the Sun.
+
+    Known from the image alone: a relative floor, :data:`DARK_FRACTION` of
+    the 99th percentile of ``brightness``, and with a ``sensor``
+    (``noise.SensorModel``) at least the level a dark pixel's own noise
+    stays below (``noise.dark_level``).
+    """
+    floor = DARK_FRACTION * float(np.percentile(brightness, 99)) if len(brightness) else 0.0
+    if sensor is not None:
+        floor = max(floor, noise.dark_level(sensor))
+    return floor
 
 
 def sample_brightness(geometry_obs: ObservationGeometry, images: list[np.ndarray]) -> np.ndarray:
