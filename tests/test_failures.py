@@ -116,12 +116,19 @@ def test_frames_without_intrinsics_or_images_are_named(small_set):
 def test_bad_input_stops_the_stage_before_any_work(small_set, tmp_path):
     """Reconstruction is the most expensive per-set stage: the bad image is named before pycolmap starts."""
     pytest.importorskip("pycolmap")
+    from asteroid_photometry.experiments.mission import mission_stage
     from asteroid_photometry.experiments.table2 import reconstruct_stage
 
+    mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission", tmp_path / "truth.json")
+    write_linear_exr(tmp_path / "mission" / "image_002.exr", np.full((SIZE, SIZE), np.nan))
+    with pytest.raises(BadInput, match="image_002.exr"):
+        reconstruct_stage(tmp_path / "mission", tmp_path / "model", True, RECONSTRUCTION, 1)
+    assert not (tmp_path / "model").exists()
+    # The world stage before it refuses the same bad image in a rendered set, and writes neither of its outputs.
     write_linear_exr(small_set / "image_002.exr", np.full((SIZE, SIZE), np.nan))
     with pytest.raises(BadInput, match="image_002.exr"):
-        reconstruct_stage(small_set, tmp_path / "model", True, RECONSTRUCTION, 1)
-    assert not (tmp_path / "model").exists()
+        mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission2", tmp_path / "truth2.json")
+    assert not (tmp_path / "mission2").exists() and not (tmp_path / "truth2.json").exists()
 
 
 # ---------------------------------------------------------------- failure is data: Table 1
@@ -342,11 +349,14 @@ def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set
     def mapper(images, intrinsics_, work_dir, **kwargs):
         seeds.append(kwargs["seed"])
         model = synthetic_model(poses, intrinsics, points)
-        return rc.SparseReconstruction(model, rc.model_report(model, poses))
+        return rc.SparseReconstruction(model, rc.model_report(model, len(poses)))
 
+    from asteroid_photometry.experiments.mission import mission_stage
+
+    mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission", tmp_path / "truth.json")
     monkeypatch.setattr(table2.reconstruct, "reconstruct_images", mapper)
     monkeypatch.setattr(table2, "outward_fraction", lambda result, min_track: fractions[len(seeds) - 1])
-    table2.reconstruct_stage(small_set, tmp_path / "model", False, RECONSTRUCTION, 1)
+    table2.reconstruct_stage(tmp_path / "mission", tmp_path / "model", False, RECONSTRUCTION, 1)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
     assert seeds == list(range(len(fractions)))
     if reason is None:
