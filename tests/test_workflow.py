@@ -99,7 +99,8 @@ def test_small_run_writes_every_output(small_run):
     for name in ["results/tables/table1.csv", "results/tables/table1.md", "results/tables/runtime.csv",
                  "results/plots/light_angle.png", "results/plots/albedo.png", "results/plots/minnaert_k.png",
                  "results/plots/per_point_errors.png", "results/plots/noise_against_bound.png",
-                 "results/plots/error_map_field.png", "results/plots/table2_errors.png", "results/plots/table2_cloud_errors.png"]:
+                 "results/plots/error_map_field.png", "results/plots/table2_errors.png", "results/plots/table2_cloud_errors.png",
+                 "results/plots/table2_conditions.png"]:
         assert (small_run / name).stat().st_size > 0, name
     frames = json.loads((small_run / "results/truth/render/light10_albedo0.6_k0.8/frames.json").read_text())
     assert len(frames["images"]) == 36

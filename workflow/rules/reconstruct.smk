@@ -133,6 +133,7 @@ rule plot_table2:
     output:
         stages=report("results/plots/table2_errors.png", caption="../report/table2_plots.rst", category="Plots"),
         cloud=report("results/plots/table2_cloud_errors.png", caption="../report/table2_plots.rst", category="Plots"),
+        conditions=report("results/plots/table2_conditions.png", caption="../report/table2_plots.rst", category="Plots"),
     params:
         method=TABLE2_PLOT_METHOD,
         title=f"{TABLE2_PLOT_SET}, imaging {TABLE2_PLOT_CONDITION}, priors {PRIOR_SETTINGS[0] if PRIOR_SETTINGS else 'on'}, {TABLE2_PLOT_METHOD}: the reconstructed cloud's per-point errors",

@@ -12,4 +12,5 @@ write_table2_plots(
     snakemake.params.title,  # noqa: F821
     snakemake.output.stages,  # noqa: F821
     snakemake.output.cloud,  # noqa: F821
+    snakemake.output.conditions,  # noqa: F821
 )

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from asteroid_photometry.core import files  # noqa: E402
-from asteroid_photometry.evaluation.metrics import TABLE2_BOUNDS, TABLE2_STAGES, with_paper  # noqa: E402
+from asteroid_photometry.evaluation.metrics import IDEAL_CONDITION, TABLE2_BOUNDS, table2_bounds, TABLE2_STAGES, with_paper  # noqa: E402
 
 QUANTITIES = {
     "light": ("light_deg_est", "light_deg_true", "light angle error (deg)"),
@@ -142,26 +142,72 @@ def plot_values_on_body(values: dict, title: str, out_path) -> None:
 def plot_table2_stages(table: pd.DataFrame, method: str, out_path) -> None:
     """The absolute errors of ``method`` on every registered set, from the cloud through refinement to the truth put in part by part.
 
-    One line per set and prior setting; dashed: the bounds the issue asks for after refinement.
+    One row of panels per imaging condition, one line per set and prior setting; dashed: the condition's bounds.
     """
-    ok = table["status"] == "ok" if "status" in table else True
-    rows = table[(table.method == method) & table.registration_ok.fillna(False).astype(bool) & ok]
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
-    for ax, key, label in zip(axes, ("light_dir_err_deg", "albedo_err", "k_err"), ("light direction error (deg)", "|albedo error|", "|k error|")):
-        bound = TABLE2_BOUNDS[key]
-        stages = [(suffix, title) for suffix, title in TABLE2_STAGES if f"{key}{suffix}" in rows]
-        for _, row in rows.iterrows():
-            values = [abs(row[f"{key}{suffix}"]) for suffix, _ in stages]
-            ax.plot(range(len(stages)), np.maximum(values, 1e-5), marker="o", lw=0.8, alpha=0.6, color="tab:blue" if row.priors == "on" else "tab:orange")
-        ax.axhline(bound, color="k", ls="--", lw=0.8)
-        ax.set_xticks(range(len(stages)), [textwrap.fill(title, 8) for _, title in stages], fontsize=8)
+    ok = table["status"] == "ok" if "status" in table else pd.Series(True, index=table.index)
+    imagings = sorted(table["imaging"].unique()) if "imaging" in table else [IDEAL_CONDITION]
+    fig, axes = plt.subplots(len(imagings), 3, figsize=(14, 4.2 * len(imagings)), squeeze=False)
+    for row_axes, imaging in zip(axes, imagings):
+        in_condition = table["imaging"] == imaging if "imaging" in table else True
+        rows = table[(table.method == method) & table.registration_ok.fillna(False).astype(bool) & ok & in_condition]
+        bounds = table2_bounds(imaging)
+        for ax, key, label in zip(row_axes, ("light_dir_err_deg", "albedo_err", "k_err"), ("light direction error (deg)", "|albedo error|", "|k error|")):
+            stages = [(suffix, title) for suffix, title in TABLE2_STAGES if f"{key}{suffix}" in rows]
+            for _, row in rows.iterrows():
+                values = [abs(row[f"{key}{suffix}"]) for suffix, _ in stages]
+                ax.plot(range(len(stages)), np.maximum(values, 1e-5), marker="o", lw=0.8, alpha=0.6, color="tab:blue" if row.priors == "on" else "tab:orange")
+            ax.axhline(bounds[key], color="k", ls="--", lw=0.8)
+            ax.set_xticks(range(len(stages)), [textwrap.fill(title, 8) for _, title in stages], fontsize=8)
+            ax.set_yscale("log")
+            ax.set_ylabel(f"{imaging}: {label}")
+    axes[0, 0].plot([], [], color="tab:blue", label="priors on")
+    axes[0, 0].plot([], [], color="tab:orange", label="priors off")
+    axes[0, 0].plot([], [], color="k", ls="--", label="bound after refinement")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(f"Table 2, {method}: errors per set, from the reconstructed cloud to the truth put in part by part")
+    fig.tight_layout()
+    files.save_figure(fig, out_path, dpi=110)
+    plt.close(fig)
+
+
+def plot_table2_conditions(table: pd.DataFrame, method: str, paper: dict, out_path) -> None:
+    """``method``'s final errors (after every stage) per imaging condition and set, beside the paper's real-image Table 2.
+
+    One column of points per condition and prior setting (a point per set; a
+    cross at the bottom for a set that failed); dashed: the condition's
+    bounds; dotted: the paper's errors on real Hayabusa images.
+    """
+    rows = table[table.method == method]
+    groups = sorted(rows.groupby(["imaging", "priors"]).groups)
+    paper_errors = {
+        "light_dir_err_deg_final": abs(paper["light_deg_est"] - paper["light_deg_true"]),
+        "albedo_err_final": abs(paper["albedo_est"] - paper["albedo_true"]),
+        "k_err_final": abs(paper["k_est"] - paper["k_true"]),
+    }
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4))
+    for ax, key, label in zip(axes, paper_errors, ("light direction error (deg)", "|albedo error|", "|k error|")):
+        floor = 1e-5
+        for position, (imaging, priors) in enumerate(groups):
+            group = rows[(rows.imaging == imaging) & (rows.priors == priors)]
+            ok = group["status"] == "ok"
+            values = group.loc[ok, key].abs().clip(lower=floor)
+            jitter = np.linspace(-0.15, 0.15, len(values)) if len(values) > 1 else np.zeros(len(values))
+            ax.scatter(position + jitter, values, s=14, color="tab:blue" if priors == "on" else "tab:orange", alpha=0.8)
+            if (~ok).any():
+                ax.scatter([position] * int((~ok).sum()), [floor] * int((~ok).sum()), marker="x", color="tab:red")
+            bound = table2_bounds(imaging)[key.removesuffix("_final")]
+            ax.hlines(bound, position - 0.35, position + 0.35, color="k", ls="--", lw=0.8)
+        ax.axhline(paper_errors[key], color="tab:green", ls=":", lw=1.2)
+        ax.set_xticks(range(len(groups)), [f"{imaging}\npriors {priors}" for imaging, priors in groups], fontsize=8)
         ax.set_yscale("log")
         ax.set_ylabel(label)
-    axes[0].plot([], [], color="tab:blue", label="priors on")
-    axes[0].plot([], [], color="tab:orange", label="priors off")
-    axes[0].plot([], [], color="k", ls="--", label="bound after refinement")
+    axes[0].scatter([], [], color="tab:blue", label="priors on")
+    axes[0].scatter([], [], color="tab:orange", label="priors off")
+    axes[0].scatter([], [], marker="x", color="tab:red", label="failed")
+    axes[0].plot([], [], color="k", ls="--", label="bound")
+    axes[0].plot([], [], color="tab:green", ls=":", label="paper, real images")
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"Table 2, {method}: errors per set, from the reconstructed cloud to the truth put in part by part")
+    fig.suptitle(f"Table 2, {method}, final estimate: per imaging condition and set, against the paper's real-image errors")
     fig.tight_layout()
     files.save_figure(fig, out_path, dpi=110)
     plt.close(fig)

@@ -729,11 +729,14 @@ def error_decomposition_markdown(table: pd.DataFrame) -> list[str]:
     return lines
 
 
-def write_table2_plots(table_csv, cloud_errors_npz, method: str, title: str, out_stages_png, out_cloud_png) -> None:
-    """Table 2's figures: errors from cloud to truth per set, and one set's cloud coloured by its per-point errors."""
+def write_table2_plots(table_csv, cloud_errors_npz, method: str, title: str, out_stages_png, out_cloud_png, out_conditions_png) -> None:
+    """Table 2's figures: errors from cloud to truth per set, the final errors per imaging condition against the paper's,
+    and one set's cloud coloured by its per-point errors."""
     from asteroid_photometry.evaluation import plots
 
-    plots.plot_table2_stages(pd.read_csv(table_csv), method, out_stages_png)
+    table = pd.read_csv(table_csv)
+    plots.plot_table2_stages(table, method, out_stages_png)
+    plots.plot_table2_conditions(table, method, PAPER_TABLE2, out_conditions_png)
     with np.load(cloud_errors_npz) as data:
         if "status" in data.files:
             plots.plot_message(f"{title}\n\nno cloud: {data['reason']}", out_cloud_png)
