@@ -168,9 +168,9 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
             system[:, :, 2:] = 0.0
             system[:, 2, 2] = system[:, 3, 3] = 1.0
             jtr[:, 2:] = 0.0
-        system[~active] = np.eye(4)
-        step = -np.linalg.solve(system, jtr[:, :, None])[:, :, 0]
-        step[~active] = 0.0
+        # Each point's 4x4 system on its own, the points with samples only (every 4x4 solve is independent of the others).
+        step = np.zeros((n_points, 4))
+        step[active] = -np.linalg.solve(system[active], jtr[active][:, :, None])[:, :, 0]
         if axis is None:
             trial_normals = normals + step[:, [0]] * e1 + step[:, [1]] * e2
             trial_normals /= np.linalg.norm(trial_normals, axis=1, keepdims=True)
