@@ -214,6 +214,18 @@ def test_small_run_table2_from_images_alone(small_run):
     assert (paper_method.albedo_err_refined.abs() < 0.01).all()
     assert (paper_method.k_err_refined.abs() < 0.01).all()
     assert (paper_method.k_err_refined.abs() < paper_method.k_err.abs()).all()
+    # An AMICA-like camera (sensor noise, PSF, 2 % gains, 10 m priors, albedo and k varying over the body): every
+    # set gives a row. The old 0.1 % purity tolerance kept no candidate of such images; the sensor's statistical
+    # test keeps thousands (small run: 2557-3189). The paper's estimator, final estimate (small run: light 0.53-1.66
+    # deg, |albedo| 0.005-0.013, |k| 0.0003-0.024), is well inside the paper's real-image errors (4.2 deg, 0.048, 0.071).
+    amica = everything[everything.imaging == "amica"]
+    assert len(amica) == 2 * 2 * 3 and (amica.status == "ok").all() and (amica.refine_accepted > 1000).all()
+    amica_paper = amica[amica.method == "koizumi_lm"]
+    assert (amica_paper.light_dir_err_deg_final < 2.5).all()
+    assert (amica_paper.albedo_err_final.abs() < 0.02).all() and (amica_paper.k_err_final.abs() < 0.04).all()
+    # Iwano's baseline is given the refinement's own k, never the truth: its error is in the row.
+    baseline = everything[everything.method == "iwano_linear"]
+    assert baseline.known_k_err.notna().all() and (baseline.known_k_err != 0).all()
     # Putting the truth in, part by part, takes the error away: with true normals, surface points
     # and cameras only the sampling of arbitrary surface points is left.
     registered = paper_method[paper_method.registration_ok]
@@ -385,7 +397,9 @@ def science_columns(row):
 def assert_same_rows(ours, reference):
     for key, value in science_columns(reference).items():
         if isinstance(value, float):
-            assert np.isclose(ours[key], value, rtol=1e-9, atol=0, equal_nan=True), (key, ours[key], value)
+            # A column only another estimator fills (e.g. Iwano's known_k) is absent where that estimator did not run.
+            mine = ours.get(key, float("nan"))
+            assert np.isclose(mine, value, rtol=1e-9, atol=0, equal_nan=True), (key, mine, value)
         else:
             assert ours[key] == value, (key, ours[key], value)
 
