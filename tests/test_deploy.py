@@ -83,5 +83,5 @@ def test_module_runs_the_small_config_to_table1(deployed):
     paper_method = table[table.method == "koizumi_lm"]
     assert (paper_method.light_dir_err_deg < 0.003).all() and (paper_method.k_err.abs() < 1e-3).all()
     # The run's files are in the user's folder.
-    assert (deployed / "results" / "render" / "light0_albedo0.6_k0.8" / "frames.json").is_file()
+    assert (deployed / "results" / "truth" / "render" / "light0_albedo0.6_k0.8" / "frames.json").is_file()
     assert (deployed / "logs").is_dir() and (deployed / "benchmarks").is_dir()

@@ -134,12 +134,12 @@ def _declared_outputs(workdir):
 
 def test_killed_run_resumes_to_the_same_tables(first_run, tmp_path):
     workdir = tmp_path / "killed"
-    render_part = workdir / "results" / "render" / f".{SET_ID}.partial"
+    render_part = workdir / "results" / "truth" / "render" / f".{SET_ID}.partial"
 
     # 1. Killed in the middle of the render: some images written, the set not complete.
     process, log = _start(workdir, tmp_path / "run1.log")
     _kill_when(process, log, lambda: len(list(render_part.glob("*.exr"))) >= 5, "render halfway")
-    assert not (workdir / "results" / "render" / SET_ID).exists(), "a half-rendered set is visible under its real name"
+    assert not (workdir / "results" / "truth" / "render" / SET_ID).exists(), "a half-rendered set is visible under its real name"
     _nothing_half_written(workdir)
 
     # 2. Restarted, killed again in the middle of a fit (its job started, its outputs not yet there).
