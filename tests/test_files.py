@@ -67,3 +67,18 @@ def test_timings_leave_the_tables_for_fit_timing(tmp_path):
     assert timing.fit_seconds.tolist() == [1.5, 2.0] and timing.registration_seconds.iloc[1] == 3.0
     assert "k_err" not in timing
     assert "fit_seconds" not in metrics.TABLE1_COLUMNS
+
+
+def test_runtime_table_names_each_stage_also_for_a_job_without_wildcards(tmp_path):
+    from asteroid_photometry.evaluation import metrics
+
+    paths = []
+    for relative, seconds in (("benchmarks/observe/setA.tsv", 2.0), ("benchmarks/observe/setB.tsv", 3.0), ("benchmarks/observation_geometry.tsv", 4.0)):
+        path = tmp_path / relative
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("s\th:m:s\tmax_rss\n" + f"{seconds}\t0:00:0{seconds:.0f}\t100.0\n")
+        paths.append(path)
+    table = metrics.runtime_table(paths)
+    assert set(table.stage) == {"observe", "observation_geometry"}
+    assert table.set_index(["stage", "job"]).loc[("observation_geometry", "all"), "seconds"] == 4.0
+    assert table.set_index(["stage", "job"]).loc[("observe", "TOTAL"), "seconds"] == 5.0

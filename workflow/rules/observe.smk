@@ -14,7 +14,7 @@ rule observation_geometry:
     log:
         "logs/observation_geometry.log",
     benchmark:
-        "benchmarks/observation_geometry.tsv"
+        "benchmarks/observation_geometry/geometry.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:

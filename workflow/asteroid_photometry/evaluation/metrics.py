@@ -218,8 +218,9 @@ def runtime_table(benchmark_paths) -> pd.DataFrame:
         parts = path.parts[path.parts.index("benchmarks") + 1 :] if "benchmarks" in path.parts else path.parts[-2:]
         bench = pd.read_csv(path, sep="\t")
         rows.append({
-            "stage": parts[0],
-            "job": "/".join(parts[1:]).removesuffix(".tsv"),
+            # A job with no wildcards may sit directly under benchmarks/: its stage is the file's name.
+            "stage": parts[0].removesuffix(".tsv"),
+            "job": "/".join(parts[1:]).removesuffix(".tsv") or "all",
             "seconds": float(bench["s"].iloc[-1]),
             "max_rss_mb": float(bench["max_rss"].iloc[-1]) if "max_rss" in bench else np.nan,
         })
