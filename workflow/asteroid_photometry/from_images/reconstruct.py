@@ -7,7 +7,9 @@ sparse point cloud from the set's own images, as a mission would, with the
 spacecraft's navigation solution (camera positions in the body frame, a few
 metres accurate) as priors in bundle adjustment.
 
-Steps (:func:`reconstruct_images`):
+Steps (:func:`reconstruct_images`; steps 1 and 2 are :func:`match_images`,
+which the workflow runs once per set, 3 to 5 :func:`map_matches`, once per
+prior setting):
 
 1. **Images.** The linear float images are mapped to 8-bit grayscale PNGs with
    one monotone tone curve for the whole set (:func:`tone_map`), so a surface
@@ -674,27 +676,17 @@ def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: i
     return {"extraction": extraction, "matching": matching, "verification": verification, "mapping": mapping}
 
 
-@dataclass(frozen=True)
-class _Workspace:
-    """Where one reconstruction works: the 8-bit images, the COLMAP database and the mapper's models."""
+#: The SIFT and matching fields of :class:`FeatureOptions` (the others are the mapper's): what a matched set records.
+MATCHING_FIELDS = ("max_num_features", "peak_threshold", "upright", "domain_size_pooling", "guided_matching", "max_ratio")
 
-    image_dir: Path
-    database_path: Path
-    mapper_dir: Path
+#: A matched set's summary (:func:`match_images`), beside its ``images/`` and ``database.db``.
+MATCHES_FILE = "matches.json"
 
-    @classmethod
-    def fresh(cls, work_dir) -> "_Workspace":
-        """The workspace under ``work_dir``, each of its parts removed if present."""
-        work_dir = Path(work_dir)
-        workspace = cls(work_dir / "images", work_dir / "database.db", work_dir / "mapper")
-        for directory in (workspace.image_dir, workspace.mapper_dir):  # only what this function writes: a rerun starts clean
-            shutil.rmtree(directory, ignore_errors=True)
-        workspace.database_path.unlink(missing_ok=True)
-        workspace.mapper_dir.mkdir(parents=True)
-        return workspace
+#: The seed of the two-view verification's RANSAC in a matched set shared by several mapper runs (``experiments.table2``).
+MATCHING_SEED = 0
 
 
-def _extract_features(workspace: _Workspace, names: list[str], intrinsics: Intrinsics, extraction_options) -> None:
+def _extract_features(image_dir: Path, database_path: Path, names: list[str], intrinsics: Intrinsics, extraction_options) -> None:
     """A new database of the images (one pinhole camera, the known intrinsics), and their SIFT features."""
     import pycolmap
 
@@ -703,33 +695,38 @@ def _extract_features(workspace: _Workspace, names: list[str], intrinsics: Intri
     reader.camera_params = f"{intrinsics.focal_px!r},{intrinsics.focal_px!r},{intrinsics.cx!r},{intrinsics.cy!r}"
     # The images enter the database one by one in set order first: the extractor numbers images in the
     # order its threads finish them, and the mapper's choices (initial pair, next image) follow the ids.
-    with pycolmap.Database.open(workspace.database_path):  # a new, empty database
+    with pycolmap.Database.open(database_path):  # a new, empty database
         pass
-    pycolmap.import_images(workspace.database_path, workspace.image_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader)
+    pycolmap.import_images(database_path, image_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader)
     pycolmap.extract_features(
-        workspace.database_path, workspace.image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+        database_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
         reader_options=reader, extraction_options=extraction_options, device=pycolmap.Device.cpu,
     )
 
 
-def _keypoints_and_priors(database_path, prior_centres, camera_position_sigma_m: float, tie_point_sigma_px: float) -> dict[str, int]:
-    """The number of keypoints of each image (by name); the navigation priors ``prior_centres`` (None: none) written as pose priors."""
+def _keypoint_counts(database_path) -> dict[str, int]:
+    """The number of keypoints of each image (by name)."""
     import pycolmap
 
     with pycolmap.Database.open(database_path) as database:
-        image_ids = {image.name: image.image_id for image in database.read_all_images()}
-        n_keypoints = {name: database.num_keypoints_for_image(image_id) for name, image_id in image_ids.items()}
-        if prior_centres is not None:
-            covariance = prior_covariance(camera_position_sigma_m, tie_point_sigma_px)
-            for image in database.read_all_images():
-                database.write_pose_prior(
-                    pycolmap.PosePrior(
-                        corr_data_id=image.data_id, position=prior_centres[image_index(image.name)],
-                        position_covariance=covariance, coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
-                    )
-                )
+        n_keypoints = {image.name: database.num_keypoints_for_image(image.image_id) for image in database.read_all_images()}
     log.info("SIFT: %d to %d keypoints per image (median %d)", min(n_keypoints.values()), max(n_keypoints.values()), int(np.median(list(n_keypoints.values()))))
     return n_keypoints
+
+
+def _write_pose_priors(database_path, prior_centres: np.ndarray, camera_position_sigma_m: float, tie_point_sigma_px: float) -> None:
+    """The navigation priors ``prior_centres`` (one row per image, set order) written to the database as pose priors."""
+    import pycolmap
+
+    covariance = prior_covariance(camera_position_sigma_m, tie_point_sigma_px)
+    with pycolmap.Database.open(database_path) as database:
+        for image in database.read_all_images():
+            database.write_pose_prior(
+                pycolmap.PosePrior(
+                    corr_data_id=image.data_id, position=prior_centres[image_index(image.name)],
+                    position_covariance=covariance, coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+                )
+            )
 
 
 def _verified_pairs(database_path) -> int:
@@ -776,6 +773,152 @@ def _warn_if_far_from_priors(report: ReconstructionReport) -> None:
         )
 
 
+def match_images(
+    images,
+    intrinsics: Intrinsics,
+    out_dir,
+    *,
+    tone_curve: str = DEFAULT_TONE_CURVE,
+    features: FeatureOptions | None = None,
+    num_threads: int = 1,
+    seed: int = MATCHING_SEED,
+) -> dict:
+    """Steps 1 and 2 of a reconstruction (module docstring): the 8-bit images, their SIFT features and verified matches.
+
+    ``images``: linear float images (list of (H, W) arrays, set order).
+    ``out_dir`` receives the 8-bit images (``images/``), the COLMAP database
+    with one shared pinhole camera of the known ``intrinsics``, the
+    keypoints, the matches and the verified two-view geometries
+    (``database.db``), and a summary (``MATCHES_FILE``, returned too: the
+    images, tone curve and reference brightness, the SIFT and matching
+    settings, keypoints per image, verified pairs, the seconds of each
+    step), each replaced if present. No navigation prior enters here: the
+    same matched set serves a reconstruction with priors and one without
+    (:func:`map_matches`). ``num_threads`` as :func:`reconstruct_images`;
+    ``seed`` seeds the two-view verification's RANSAC.
+    """
+    import pycolmap
+
+    features = FeatureOptions() if features is None else features
+    out_dir = Path(out_dir)
+    image_dir, database_path = out_dir / "images", out_dir / "database.db"
+    shutil.rmtree(image_dir, ignore_errors=True)  # only what this function writes: a rerun starts clean
+    database_path.unlink(missing_ok=True)
+    pycolmap.set_random_seed(seed)
+    names = [image_name(i) for i in range(len(images))]
+    reference = write_images(images, names, image_dir, tone_curve)
+    options = _pycolmap_options(features, False, num_threads, seed)
+    stage_seconds = {}
+
+    tick = time.perf_counter()
+    _extract_features(image_dir, database_path, names, intrinsics, options["extraction"])
+    stage_seconds["features"] = time.perf_counter() - tick
+    n_keypoints = _keypoint_counts(database_path)
+
+    tick = time.perf_counter()
+    pycolmap.match_exhaustive(database_path, matching_options=options["matching"], verification_options=options["verification"], device=pycolmap.Device.cpu)
+    stage_seconds["matching"] = time.perf_counter() - tick
+
+    summary = {
+        "n_images": len(images), "tone_curve": tone_curve, "reference_brightness": reference, "seed": int(seed),
+        "features": {key: getattr(features, key) for key in MATCHING_FIELDS},
+        "n_keypoints": n_keypoints, "median_keypoints": int(np.median(list(n_keypoints.values()))),
+        "n_verified_pairs": int(_verified_pairs(database_path)), "stage_seconds": stage_seconds,
+    }
+    files.write_json(out_dir / MATCHES_FILE, summary)
+    return summary
+
+
+def read_matches(matches_dir) -> dict:
+    """The summary :func:`match_images` wrote to ``matches_dir``, its images and database checked present."""
+    matches_dir = Path(matches_dir)
+    for path in (matches_dir / MATCHES_FILE, matches_dir / "database.db", matches_dir / "images"):
+        if not path.exists():
+            raise FileNotFoundError(f"{path} is missing: {matches_dir} is not a complete matched set (match_images)")
+    return json.loads((matches_dir / MATCHES_FILE).read_text())
+
+
+def map_matches(
+    matches_dir,
+    work_dir,
+    *,
+    prior_positions: np.ndarray | None = None,
+    intrinsics_mode: str = "fixed",
+    camera_position_sigma_m: float = 1.0,
+    tie_point_sigma_px: float = 1.0,
+    features: FeatureOptions | None = None,
+    overfit_ratio: float = DEFAULT_OVERFIT_RATIO,
+    seed: int = 0,
+) -> SparseReconstruction:
+    """Steps 3 to 5 of a reconstruction (module docstring) from a matched set (:func:`match_images`, in ``matches_dir``).
+
+    ``matches_dir`` is only read. Its database is copied to ``work_dir``,
+    the pose priors are written into the copy where given, the mapper
+    writes its models to ``work_dir/mapper`` (replaced if present), and the
+    copy is removed when the model is done. ``prior_positions`` (n, 3),
+    ``intrinsics_mode``, the accuracies and ``overfit_ratio`` as
+    :func:`reconstruct_images`. ``features`` gives the mapper's
+    registration thresholds; its SIFT and matching fields must be those the
+    set was matched with (``ValueError`` if not). ``seed`` seeds the
+    mapper's and the final adjustment's RANSACs and sampling, not the
+    matches: those are the matched set's. The report's ``stage_seconds``
+    take ``features`` and ``matching`` from the matched set, and its
+    ``seconds`` count them too.
+    """
+    import pycolmap
+
+    if intrinsics_mode not in ("fixed", "refine"):
+        raise ValueError(f"intrinsics must be 'fixed' or 'refine', got {intrinsics_mode!r}")
+    matches_dir, work_dir = Path(matches_dir), Path(work_dir)
+    matched = read_matches(matches_dir)
+    n_images = matched["n_images"]
+    use_priors = prior_positions is not None
+    if use_priors:
+        prior_positions = np.asarray(prior_positions, dtype=float)
+        if prior_positions.shape != (n_images, 3):
+            raise ValueError(f"{n_images} images but prior positions of shape {prior_positions.shape}; expected ({n_images}, 3)")
+    features = FeatureOptions() if features is None else features
+    differing = {key: (getattr(features, key), matched["features"][key]) for key in MATCHING_FIELDS if getattr(features, key) != matched["features"][key]}
+    if differing:
+        raise ValueError(f"{matches_dir} was matched with other settings (asked, matched): {differing}")
+    started = time.perf_counter()
+    stage_seconds = {key: matched["stage_seconds"][key] for key in ("features", "matching")}
+    pycolmap.set_random_seed(seed)
+
+    database_path, mapper_dir = work_dir / "database.db", work_dir / "mapper"
+    shutil.rmtree(mapper_dir, ignore_errors=True)  # only what this function writes: a rerun starts clean
+    mapper_dir.mkdir(parents=True)
+    shutil.copyfile(matches_dir / "database.db", database_path)  # the matched set's own stays as it is
+    if use_priors:
+        _write_pose_priors(database_path, prior_positions, camera_position_sigma_m, tie_point_sigma_px)
+    options = _pycolmap_options(features, use_priors, 1, seed)
+
+    tick = time.perf_counter()
+    models = pycolmap.incremental_mapping(database_path, matches_dir / "images", mapper_dir, options["mapping"])
+    stage_seconds["mapping"] = time.perf_counter() - tick
+    database_path.unlink()  # the matched set's database and the priors: nothing the model needs
+    model = _largest_model(models, n_images, matched["n_verified_pairs"])
+
+    tick = time.perf_counter()
+    _final_bundle_adjustment(model, prior_positions, camera_position_sigma_m, tie_point_sigma_px, intrinsics_mode, seed)
+    stage_seconds["final_bundle_adjustment"] = time.perf_counter() - tick
+
+    report = model_report(
+        model, n_images, prior_positions, camera_position_sigma_m=camera_position_sigma_m,
+        tie_point_sigma_px=tie_point_sigma_px, intrinsics_mode=intrinsics_mode, overfit_ratio=overfit_ratio,
+        seconds=time.perf_counter() - started + stage_seconds["features"] + stage_seconds["matching"], stage_seconds=stage_seconds,
+        settings={
+            "tone_curve": matched["tone_curve"], "reference_brightness": matched["reference_brightness"], "seed": int(seed),
+            "features": asdict(features), "n_models": len(models), "n_verified_pairs": int(matched["n_verified_pairs"]),
+            "median_keypoints": int(matched["median_keypoints"]),
+        },
+    )
+    if use_priors:
+        _warn_if_far_from_priors(report)
+    log.info("reconstruction: %s", json.dumps(report.to_dict()))
+    return SparseReconstruction(model, report, prior_positions)
+
+
 def reconstruct_images(
     images,
     intrinsics: Intrinsics,
@@ -791,78 +934,30 @@ def reconstruct_images(
     num_threads: int = 1,
     seed: int = 0,
 ) -> SparseReconstruction:
-    """Sparse reconstruction of one set of linear float images (list of (H, W) arrays, set order).
+    """Sparse reconstruction of one set of linear float images (list of (H, W) arrays, set order): :func:`match_images`, then :func:`map_matches`.
 
-    ``work_dir`` receives the 8-bit images (``images/``), the COLMAP database
-    (``database.db``) and the mapper's models (``mapper/``), each replaced if
-    present. ``prior_positions`` (n, 3), the navigation solution's camera
-    centres in the body frame (metres), accurate to ``camera_position_sigma_m``
-    per axis, are the pose priors; ``None`` reconstructs without priors.
-    ``intrinsics_mode`` is ``"fixed"`` (the known intrinsics, never refined) or
-    ``"refine"`` (focal lengths refined in the final bundle adjustment).
-    ``num_threads`` is for feature extraction and matching (-1: all cores,
-    COLMAP's convention); mapping and bundle adjustment run on
-    ``MAPPING_THREADS``. ``seed`` seeds pycolmap's RANSACs and mapper: with
-    one thread (the default, and what the workflow runs) the same images,
-    settings and seed give the same model, bit for bit. With more, a loaded
-    machine was seen to give a model of 1515 points instead of 1539 from the
-    same images (without priors, where nothing pins the model): thread
-    timing reaches the matches.
+    ``work_dir`` receives the matched set (``features/``: the 8-bit images,
+    the COLMAP database, its summary) and the mapper's models (``mapper/``),
+    each replaced if present. ``prior_positions`` (n, 3), the navigation
+    solution's camera centres in the body frame (metres), accurate to
+    ``camera_position_sigma_m`` per axis, are the pose priors; ``None``
+    reconstructs without priors. ``intrinsics_mode`` is ``"fixed"`` (the
+    known intrinsics, never refined) or ``"refine"`` (focal lengths refined
+    in the final bundle adjustment). ``num_threads`` is for feature
+    extraction and matching (-1: all cores, COLMAP's convention); mapping
+    and bundle adjustment run on ``MAPPING_THREADS``. ``seed`` seeds
+    pycolmap's RANSACs (the two-view verification's among them) and
+    mapper: with one thread (the default, and what the workflow runs) the
+    same images, settings and seed give the same model, bit for bit. With
+    more, a loaded machine was seen to give a model of 1515 points instead
+    of 1539 from the same images (without priors, where nothing pins the
+    model): thread timing reaches the matches.
     """
-    import pycolmap
-
-    if intrinsics_mode not in ("fixed", "refine"):
-        raise ValueError(f"intrinsics must be 'fixed' or 'refine', got {intrinsics_mode!r}")
-    use_priors = prior_positions is not None
-    if use_priors:
-        prior_positions = np.asarray(prior_positions, dtype=float)
-        if prior_positions.shape != (len(images), 3):
-            raise ValueError(f"{len(images)} images but prior positions of shape {prior_positions.shape}; expected ({len(images)}, 3)")
-    features = FeatureOptions() if features is None else features
-    started = time.perf_counter()
-    stage_seconds = {}
-    pycolmap.set_random_seed(seed)
-
-    workspace = _Workspace.fresh(work_dir)
-    names = [image_name(i) for i in range(len(images))]
-    reference = write_images(images, names, workspace.image_dir, tone_curve)
-    options = _pycolmap_options(features, use_priors, num_threads, seed)
-
-    tick = time.perf_counter()
-    _extract_features(workspace, names, intrinsics, options["extraction"])
-    stage_seconds["features"] = time.perf_counter() - tick
-
-    prior_centres = prior_positions
-    n_keypoints = _keypoints_and_priors(workspace.database_path, prior_centres, camera_position_sigma_m, tie_point_sigma_px)
-
-    tick = time.perf_counter()
-    pycolmap.match_exhaustive(
-        workspace.database_path, matching_options=options["matching"], verification_options=options["verification"], device=pycolmap.Device.cpu,
+    if prior_positions is not None and np.shape(prior_positions) != (len(images), 3):  # before any work
+        raise ValueError(f"{len(images)} images but prior positions of shape {np.shape(prior_positions)}; expected ({len(images)}, 3)")
+    matches_dir = Path(work_dir) / "features"
+    match_images(images, intrinsics, matches_dir, tone_curve=tone_curve, features=features, num_threads=num_threads, seed=seed)
+    return map_matches(
+        matches_dir, work_dir, prior_positions=prior_positions, intrinsics_mode=intrinsics_mode, camera_position_sigma_m=camera_position_sigma_m,
+        tie_point_sigma_px=tie_point_sigma_px, features=features, overfit_ratio=overfit_ratio, seed=seed,
     )
-    stage_seconds["matching"] = time.perf_counter() - tick
-    n_verified_pairs = _verified_pairs(workspace.database_path)
-
-    tick = time.perf_counter()
-    models = pycolmap.incremental_mapping(workspace.database_path, workspace.image_dir, workspace.mapper_dir, options["mapping"])
-    stage_seconds["mapping"] = time.perf_counter() - tick
-    model = _largest_model(models, len(images), n_verified_pairs)
-
-    tick = time.perf_counter()
-    _final_bundle_adjustment(model, prior_centres, camera_position_sigma_m, tie_point_sigma_px, intrinsics_mode, seed)
-    stage_seconds["final_bundle_adjustment"] = time.perf_counter() - tick
-
-    report = model_report(
-        model, len(images), prior_centres, camera_position_sigma_m=camera_position_sigma_m,
-        tie_point_sigma_px=tie_point_sigma_px, intrinsics_mode=intrinsics_mode, overfit_ratio=overfit_ratio,
-        seconds=time.perf_counter() - started, stage_seconds=stage_seconds,
-        settings={
-            "tone_curve": tone_curve, "reference_brightness": reference, "seed": int(seed),
-            "features": asdict(features), "n_models": len(models), "n_verified_pairs": int(n_verified_pairs),
-            "median_keypoints": int(np.median(list(n_keypoints.values()))),
-        },
-    )
-    if use_priors:
-        _warn_if_far_from_priors(report)
-    log.info("reconstruction: %s", json.dumps(report.to_dict()))
-    full_priors = prior_centres if use_priors else None
-    return SparseReconstruction(model, report, full_priors)

@@ -144,11 +144,16 @@ def read_mission(mission_dir) -> tuple[dict, list[np.ndarray]]:
     (``sensor``, or null for noise-free images). No pose, no light, no
     albedo or k. Errors as ``read_rendered_images``.
     """
-    mission_dir = Path(mission_dir)
-    mission_path = mission_dir / MISSION_FILE
+    mission = read_mission_file(mission_dir)
+    return mission, _read_checked_images(Path(mission_dir), mission["images"], mission["intrinsics"])
+
+
+def read_mission_file(mission_dir) -> dict:
+    """A mission set's ``mission.json`` alone, checked as by ``read_mission`` (its images are not read)."""
+    mission_path = Path(mission_dir) / MISSION_FILE
     mission = _read_set_file(mission_path)
     check_mission(mission, mission_path)
-    return mission, _read_checked_images(mission_dir, mission["images"], mission["intrinsics"])
+    return mission
 
 
 def mission_navigation(mission: dict) -> tuple[np.ndarray | None, float | None]:
