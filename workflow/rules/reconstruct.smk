@@ -1,18 +1,38 @@
-# Table 2, from images alone: sparse reconstruction, registration to the
-# shape model, refinement, the estimators on the reconstructed cloud, each
-# from the mission set (rule mission) and no truth; then the scoring, which
-# alone reads the truth.
+# Table 2, from images alone: features and matches, sparse reconstruction,
+# registration to the shape model, refinement, the estimators on the
+# reconstructed cloud, each from the mission set (rule mission) and no truth;
+# then the scoring, which alone reads the truth.
+
+
+# The 8-bit images, SIFT features and verified matches of a set: once for both prior settings (the priors
+# enter only the mapper and the final adjustment).
+rule match_features:
+    input:
+        mission=rules.mission.output.mission,
+    output:
+        features=directory("results/features/{imaging}/{set_id}"),
+    # One thread: feature matching on more is not reproducible under load (see reconstruct_images).
+    threads: 1
+    log:
+        "logs/match_features/{imaging}/{set_id}.log",
+    benchmark:
+        "benchmarks/match_features/{imaging}/{set_id}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/match_features.py"
 
 
 rule reconstruct:
     input:
         mission=rules.mission.output.mission,
+        features=rules.match_features.output.features,
     output:
         model=directory("results/reconstruction/{imaging}/{set_id}/priors-{priors}"),
     params:
         use_priors=lambda wildcards: wildcards.priors == "on",
         settings=reconstruction_settings("reconstruct"),
-    # One thread: feature matching on more is not reproducible under load (see reconstruct_images).
+    # The mapper and bundle adjustments run on one thread (reconstruct.MAPPING_THREADS).
     threads: 1
     log:
         "logs/reconstruct/{imaging}/{set_id}/priors-{priors}.log",

@@ -45,7 +45,7 @@ from asteroid_photometry.from_images import cloud as cloud_lib, reconstruct, ref
 from asteroid_photometry.from_images.purity import PurityTest
 from asteroid_photometry.world import mesh
 from asteroid_photometry.world.cameras import Intrinsics
-from asteroid_photometry.world.images import mission_navigation, read_mission
+from asteroid_photometry.world.images import mission_navigation, read_mission, read_mission_file
 from asteroid_photometry.world.noise import sensor_from_config
 from asteroid_photometry.world.shape import load_shape_npz
 
@@ -111,41 +111,75 @@ def read_reconstruction(reconstruction_dir) -> reconstruct.SparseReconstruction:
     return reconstruct.SparseReconstruction.read(reconstruction_dir)
 
 
-def reconstruct_stage(mission_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
-    """Sparse reconstruction of one mission set (``world.images.read_mission``), with or without its navigation priors.
+def match_features_stage(mission_dir, out_dir, threads: int) -> None:
+    """The 8-bit images, SIFT features and verified matches of one mission set (``reconstruct.match_images``), in ``out_dir``.
 
-    A model whose surface faces inwards (``outward_fraction`` below 0.5) is
-    the depth-reversed twin, not the body: the mapper is run again with the
-    next seed, up to ``MAX_MAPPER_SEEDS`` times, and the attempts are logged
-    and recorded in the report's settings. ``status.json`` in ``out_dir``
-    says ``ok``, or ``failed`` with the reason: too few images registered
-    (``reconstruct.MIN_REGISTERED_IMAGES``), fewer than ``MIN_CLOUD_POINTS``
-    points, a depth-reversed model on every seed, a blank set.
+    What both reconstructions of a set (priors on and off) start from: no
+    navigation prior enters here, and the two-view verification's RANSAC is
+    seeded with ``reconstruct.MATCHING_SEED``. ``status.json`` in
+    ``out_dir`` says ``ok``, or ``failed`` with the reason (a blank set, a
+    failed mission set), which ``reconstruct_stage`` passes on.
     """
     out_dir = Path(out_dir)
     try:
-        _reconstruct(mission_dir, out_dir, use_priors, settings, threads)
+        _match_features(mission_dir, out_dir, threads)
+    except DataFailure as failure:
+        part = files.partial_directory(out_dir)
+        write_status_json(part / STATUS_FILE, record("match_features", failure))
+        files.move_into_place(part, out_dir)
+
+
+def _match_features(mission_dir, out_dir: Path, threads: int) -> None:
+    mission, images = read_mission(mission_dir)  # checked before any work
+    part = files.partial_directory(out_dir)  # renamed to out_dir when complete
+    reconstruct.match_images(images, Intrinsics(**mission["intrinsics"]), part, num_threads=threads, seed=reconstruct.MATCHING_SEED)
+    write_status_json(part / STATUS_FILE)
+    files.move_into_place(part, out_dir)
+
+
+def reconstruct_stage(mission_dir, features_dir, out_dir, use_priors: bool, settings: dict) -> None:
+    """Sparse reconstruction of one mission set from its matched features (``match_features_stage``), with or without its navigation priors.
+
+    ``features_dir`` is only read (``reconstruct.map_matches`` copies its
+    database); the mission set gives the navigation priors. A model whose
+    surface faces inwards (``outward_fraction`` below 0.5) is the
+    depth-reversed twin, not the body: the mapper is run again with the
+    next seed, up to ``MAX_MAPPER_SEEDS`` times, and the attempts are logged
+    and recorded in the report's settings. The matches are the same on
+    every attempt (seeded once, by ``match_features_stage``): only the
+    mapper's seed changes (the mapper's RANSACs, its choices and the final
+    adjustment's). ``status.json`` in ``out_dir`` says ``ok``, or
+    ``failed`` with the reason: too few images registered
+    (``reconstruct.MIN_REGISTERED_IMAGES``), fewer than ``MIN_CLOUD_POINTS``
+    points, a depth-reversed model on every seed, or the features stage's
+    own failure (a blank set), passed on.
+    """
+    out_dir = Path(out_dir)
+    try:
+        _reconstruct(mission_dir, features_dir, out_dir, use_priors, settings)
     except DataFailure as failure:
         part = files.partial_directory(out_dir)
         write_status_json(part / STATUS_FILE, record("reconstruct", failure))
         files.move_into_place(part, out_dir)
 
 
-def _reconstruct(mission_dir, out_dir, use_priors: bool, settings: dict, threads: int) -> None:
-    mission, images = read_mission(mission_dir)  # checked before any work
+def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings: dict) -> None:
+    mission = read_mission_file(mission_dir)  # checked before any work
     prior_positions, prior_sigma_m = mission_navigation(mission)
     if use_priors and prior_positions is None:
         raise BadInput(
             f"{mission_dir}: a reconstruction with priors asked for, but the mission set has no navigation priors "
             f"(its imaging condition {mission.get('imaging')!r} has prior_sigma_m 0)"
         )
+    status_path = Path(features_dir) / STATUS_FILE
+    check_status(json.loads(status_path.read_text()), status_path)  # the features stage's failure, passed on
     attempts = []
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     for seed in range(MAX_MAPPER_SEEDS):
-        result = reconstruct.reconstruct_images(
-            images, Intrinsics(**mission["intrinsics"]), part / "work", prior_positions=prior_positions if use_priors else None,
+        result = reconstruct.map_matches(
+            features_dir, part / "work", prior_positions=prior_positions if use_priors else None,
             intrinsics_mode=settings["intrinsics"], camera_position_sigma_m=prior_sigma_m if use_priors else 1.0,
-            tie_point_sigma_px=settings["tie_point_sigma_px"], num_threads=threads, seed=seed,
+            tie_point_sigma_px=settings["tie_point_sigma_px"], seed=seed,
             features=reconstruct.FeatureOptions(
                 min_pose_inliers=settings["min_pose_inliers"], min_pose_inlier_ratio=settings["min_pose_inlier_ratio"],
             ),
