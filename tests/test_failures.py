@@ -117,13 +117,13 @@ def test_bad_input_stops_the_stage_before_any_work(small_set, tmp_path):
     """Reconstruction is the most expensive per-set stage: the bad image is named before pycolmap starts."""
     pytest.importorskip("pycolmap")
     from asteroid_photometry.experiments.mission import mission_stage
-    from asteroid_photometry.experiments.table2 import reconstruct_stage
+    from asteroid_photometry.experiments.table2 import match_features_stage
 
     mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission", tmp_path / "truth.json")
     write_linear_exr(tmp_path / "mission" / "image_002.exr", np.full((SIZE, SIZE), np.nan))
     with pytest.raises(BadInput, match="image_002.exr"):
-        reconstruct_stage(tmp_path / "mission", tmp_path / "model", True, RECONSTRUCTION, 1)
-    assert not (tmp_path / "model").exists()
+        match_features_stage(tmp_path / "mission", tmp_path / "features", 1)
+    assert not (tmp_path / "features").exists()
     # The world stage before it refuses the same bad image in a rendered set, and writes neither of its outputs.
     write_linear_exr(small_set / "image_002.exr", np.full((SIZE, SIZE), np.nan))
     with pytest.raises(BadInput, match="image_002.exr"):
@@ -247,12 +247,15 @@ RECONSTRUCTION = {
 def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_image_set, tmp_path):
     from asteroid_photometry.experiments.mission import mission_stage
     from asteroid_photometry.experiments.table2 import (
-        CloudStageInputs, estimate_cloud_stage, reconstruct_stage, refine_stage, register_stage, score_cloud_stage, ScoringInputs, write_table2,
+        CloudStageInputs, estimate_cloud_stage, match_features_stage, reconstruct_stage, refine_stage, register_stage, score_cloud_stage,
+        ScoringInputs, write_table2,
     )
 
     mission_dir = tmp_path / "mission"
     mission_stage(four_image_set, {"name": "ideal", "prior_sigma_m": 0.01}, [], 0, 0, mission_dir, tmp_path / "truth.json")
-    reconstruct_stage(mission_dir, tmp_path / "model", True, RECONSTRUCTION, 1)
+    match_features_stage(mission_dir, tmp_path / "features", 1)
+    assert json.loads((tmp_path / "features" / "status.json").read_text()) == {"status": "ok"}
+    reconstruct_stage(mission_dir, tmp_path / "features", tmp_path / "model", True, RECONSTRUCTION)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
     assert status["status"] == "failed" and status["reason"].startswith("reconstruct: pycolmap registered ")
     assert "of 4 images in its largest model (at least 3 needed" in status["reason"]
@@ -274,6 +277,27 @@ def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_imag
     write_table2([tmp_path / "row.json"], tmp_path / "table2.csv", tmp_path / "table2.md")
     assert pd.read_csv(tmp_path / "table2.csv").status.iloc[0] == row["status"]
     assert "0 of 1 sets ok; 1 failed: light10_albedo0.6_k0.8 (reconstruct: pycolmap registered" in (tmp_path / "table2.md").read_text()
+
+
+def test_a_failed_mission_set_is_passed_on_by_the_features_and_both_reconstructions(small_set, tmp_path):
+    """Blank images fail the mission set; the features stage and the reconstructions record its reason unchanged."""
+    pytest.importorskip("pycolmap")
+    from asteroid_photometry.experiments.mission import mission_stage
+    from asteroid_photometry.experiments.table2 import match_features_stage, read_reconstruction, reconstruct_stage
+
+    for path in small_set.glob("image_*.exr"):
+        write_linear_exr(path, np.zeros((SIZE, SIZE)))
+    mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission", tmp_path / "truth.json")
+    match_features_stage(tmp_path / "mission", tmp_path / "features", 1)
+    status = json.loads((tmp_path / "features" / "status.json").read_text())
+    assert status["status"] == "failed" and status["reason"].startswith("mission: 3 of 3 images are blank")
+    assert [path.name for path in (tmp_path / "features").iterdir()] == ["status.json"]
+    for use_priors in (True, False):
+        model_dir = tmp_path / f"model-{use_priors}"
+        reconstruct_stage(tmp_path / "mission", tmp_path / "features", model_dir, use_priors, RECONSTRUCTION)
+        assert json.loads((model_dir / "status.json").read_text()) == status
+        with pytest.raises(DataFailure, match="mission: 3 of 3 images are blank"):
+            read_reconstruction(model_dir)
 
 
 def test_a_mission_set_holds_no_truth_and_its_truth_file_does(four_image_set, tmp_path):
@@ -298,7 +322,7 @@ def test_a_mission_set_holds_no_truth_and_its_truth_file_does(four_image_set, tm
 
     mission_stage(four_image_set, {"name": "lost", "prior_sigma_m": 0.0}, [], 0, 0, tmp_path / "lost", tmp_path / "lost.json")
     with pytest.raises(BadInput, match="no navigation priors .*'lost' has prior_sigma_m 0"):
-        reconstruct_stage(tmp_path / "lost", tmp_path / "model", True, RECONSTRUCTION, 1)
+        reconstruct_stage(tmp_path / "lost", tmp_path / "no_features", tmp_path / "model", True, RECONSTRUCTION)
 
 
 # ---------------------------------------------------------------- disk and memory, before the run
@@ -346,7 +370,7 @@ def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set
     poses, intrinsics, points = synthetic_scene()
     seeds = []
 
-    def mapper(images, intrinsics_, work_dir, **kwargs):
+    def mapper(matches_dir, work_dir, **kwargs):
         seeds.append(kwargs["seed"])
         model = synthetic_model(poses, intrinsics, points)
         return rc.SparseReconstruction(model, rc.model_report(model, len(poses)))
@@ -354,9 +378,10 @@ def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set
     from asteroid_photometry.experiments.mission import mission_stage
 
     mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission", tmp_path / "truth.json")
-    monkeypatch.setattr(table2.reconstruct, "reconstruct_images", mapper)
+    failures.write_status_json(tmp_path / "features" / "status.json")  # the matched set, never read by the stubbed mapper
+    monkeypatch.setattr(table2.reconstruct, "map_matches", mapper)
     monkeypatch.setattr(table2, "outward_fraction", lambda result, min_track: fractions[len(seeds) - 1])
-    table2.reconstruct_stage(tmp_path / "mission", tmp_path / "model", False, RECONSTRUCTION, 1)
+    table2.reconstruct_stage(tmp_path / "mission", tmp_path / "features", tmp_path / "model", False, RECONSTRUCTION)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
     assert seeds == list(range(len(fractions)))
     if reason is None:

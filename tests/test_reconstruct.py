@@ -4,6 +4,8 @@ Synthetic inputs with known answers; the slow measurement on a rendered set
 is not part of the suite (see the module docstring of ``reconstruct``).
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -320,3 +322,32 @@ def test_the_same_images_give_the_same_model_bit_for_bit(sphere_images, tmp_path
     (poses_a, ids_a, xyz_a), (poses_b, ids_b, xyz_b) = models
     assert poses_a.keys() == poses_b.keys() and all(np.array_equal(poses_a[k], poses_b[k]) for k in poses_a)
     assert np.array_equal(ids_a, ids_b) and np.array_equal(xyz_a, xyz_b)
+
+
+def test_one_matched_set_serves_both_prior_settings_and_is_only_read(sphere_images, tmp_path):
+    """map_matches copies the matched set's database; with seed 0 its model is reconstruct_images's, bit for bit."""
+    images, intrinsics, poses = sphere_images
+    matched = rc.match_images(images, intrinsics, tmp_path / "features")
+    assert matched == json.loads((tmp_path / "features" / rc.MATCHES_FILE).read_text()) and matched["n_verified_pairs"] > 0
+    assert sorted(matched["n_keypoints"]) == [rc.image_name(k) for k in range(len(images))]
+
+    def contents():
+        return {path: path.read_bytes() for path in (tmp_path / "features").rglob("*") if path.is_file()}
+
+    before = contents()
+    with_priors = rc.map_matches(
+        tmp_path / "features", tmp_path / "on", prior_positions=cameras.simulate_navigation_positions(poses, 0.01, 0), camera_position_sigma_m=0.01,
+    )
+    without = rc.map_matches(tmp_path / "features", tmp_path / "off")
+    assert contents() == before
+    assert with_priors.report.world_frame == "body" and without.report.world_frame == "arbitrary"
+    assert with_priors.report.cam_pos_rms_m is not None and not (tmp_path / "on" / "database.db").exists()
+    for result in (with_priors, without):
+        assert result.report.settings["n_verified_pairs"] == matched["n_verified_pairs"]
+        assert {"features", "matching"} <= set(result.report.stage_seconds) and result.report.stage_seconds["features"] == matched["stage_seconds"]["features"]
+    whole = rc.reconstruct_images(images, intrinsics, tmp_path / "whole")
+    poses_whole, poses_split = whole.body_to_camera(), without.body_to_camera()
+    assert poses_whole.keys() == poses_split.keys() and all(np.array_equal(poses_whole[k], poses_split[k]) for k in poses_whole)
+    assert np.array_equal(whole.points3d()[1], without.points3d()[1])
+    with pytest.raises(ValueError, match="matched with other settings"):
+        rc.map_matches(tmp_path / "features", tmp_path / "other", features=rc.FeatureOptions(peak_threshold=0.01))

@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[1]
 #: The simulation of the world: they make the truth and the mission sets from it.
 WORLD_RULES = {"fetch_shape_model", "prepare_shape", "imaging_geometry", "render", "add_noise", "mission"}
 #: The image-only path of Table 2, up to its estimates.
-IMAGE_ONLY_RULES = {"reconstruct", "register_cloud", "refine_cloud", "estimate_cloud"}
+IMAGE_ONLY_RULES = {"match_features", "reconstruct", "register_cloud", "refine_cloud", "estimate_cloud"}
 JOB_HEADER = re.compile(r"^(?:local)?rule (\w+):$")
 
 

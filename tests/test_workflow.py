@@ -35,6 +35,7 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["fit"] == (16 + 16 + 48) * 3
     # One imaging geometry: its candidate observations need no light (each set selects with its estimated light).
     assert jobs["observation_geometry"] == 1
+    assert jobs["match_features"] == 2 * 16  # two conditions: one set of features and matches for both prior settings
     assert jobs["reconstruct"] == 2 * 16 * 2  # two conditions, with and without priors
     assert jobs["refine_cloud"] == 2 * 16 * 2
     # Table 2 under two imaging conditions (ideal, amica): a mission set per condition and base set.
@@ -76,7 +77,7 @@ def test_dry_run_with_the_optional_parts_off_plans_table1_only(tmp_path):
     assert run.returncode == 0, run.stdout + run.stderr
     jobs = _job_counts(run.stdout)
     assert jobs["render"] == 16 and jobs["fit"] == 16 * 3 and jobs["tabulate_table1"] == 1
-    for absent in ("add_noise", "plot_noise", "tabulate_sweep", "noise_monte_carlo", "reconstruct", "refine_cloud", "tabulate_table2", "plot_table2", "plot_error_map", "geometry_sensitivity", "render_model_set", "tabulate_model_mismatch"):
+    for absent in ("add_noise", "plot_noise", "tabulate_sweep", "noise_monte_carlo", "match_features", "reconstruct", "refine_cloud", "tabulate_table2", "plot_table2", "plot_error_map", "geometry_sensitivity", "render_model_set", "tabulate_model_mismatch"):
         assert absent not in jobs, absent
 
 
@@ -116,7 +117,7 @@ def test_small_run_writes_every_output(small_run):
     assert mission["sensor"]["name"] == "amica12" and mission["navigation"]["sigma_m"] == 10.0
     runtime = pd.read_csv(small_run / "results/tables/runtime.csv")
     assert set(runtime.stage) == {
-        "render", "add_noise", "observation_geometry", "observe", "fit", "reconstruct", "register_cloud", "refine_cloud", "mission",
+        "render", "add_noise", "observation_geometry", "observe", "fit", "match_features", "reconstruct", "register_cloud", "refine_cloud", "mission",
         "estimate_cloud", "score_cloud", "noise_monte_carlo", "geometry_sensitivity", "render_model_set", "fit_model_set", "phase_sweep_set",
     }
     for sweep in ("noise", "surface_maps"):

@@ -44,6 +44,7 @@ rule tabulate_runtime:
             *expand(rules.noise_monte_carlo.benchmark, set_id=MONTE_CARLO_SETS),
             *expand(rules.geometry_sensitivity.benchmark, set_id=SENSITIVITY_SETS),
             *expand(rules.mission.benchmark, imaging=CONDITIONS, set_id=BASE_SETS),
+            *(expand(rules.match_features.benchmark, imaging=CONDITIONS, set_id=BASE_SETS) if PRIOR_SETTINGS else []),
             *expand(rules.reconstruct.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(rules.register_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(rules.refine_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
