@@ -339,7 +339,10 @@ def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_shor
     full = estimate_footprint(config, sets, 2, 3)
     # The default run: 80 sets; 32 clean sets of 7.3 MB and 48 noisy ones of 16.4 MB are 1.0 GB of images alone.
     assert full.n_sets == 80 and 1.0e9 < full.total_disk_bytes < 2.0e9
-    assert full.largest_job[0] == "refine_cloud" and "estimated footprint of this run: 1.5 GB" in full.summary()
+    assert full.largest_job[0] == "refine_cloud" and "estimated footprint of this run: 1.4 GB" in full.summary()
+    # A set's features and matches serve both prior settings: the second setting adds only its model.
+    one = estimate_footprint(config, sets, 1, 3)
+    assert one.disk_bytes["reconstructions"] < full.disk_bytes["reconstructions"] < 1.5 * one.disk_bytes["reconstructions"]
     # Table 2 under the two conditions of the default config: a noisy mission set weighs about what a noisy rendered one does.
     two = estimate_footprint(config, sets, 2, 3, conditions={"ideal": {}, "amica": {"sensor_level": "amica12"}})
     assert two.disk_bytes["reconstructions"] == pytest.approx(2 * full.disk_bytes["reconstructions"])
