@@ -65,7 +65,7 @@ def test_module_dry_run_follows_the_users_own_config(deployed):
     assert jobs["render"] == 2 and jobs["fit"] == 2 * 3 and jobs["tabulate_table1"] == 1
     # The shape model is the one that ships with the workflow: nothing to download.
     assert "fetch_shape_model" not in jobs and jobs["prepare_shape"] == 1
-    assert "reconstruct" not in jobs and "add_noise" not in jobs
+    assert "match_features" not in jobs and "reconstruct" not in jobs and "add_noise" not in jobs
     # A typo in the user's config is named, as it is in the repository's own.
     write_user_config(deployed, albedos=[0.3], minnaert_k=[0.9], light_angles_deg=[20], albdeos=[0.1])
     bad = run([str(BIN / "snakemake"), "-n", "--cores", "1"], cwd=deployed)

@@ -49,7 +49,7 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["render_model_set"] == 5 * 2 + 6
     assert jobs["fit_model_set"] == 5 * 2 and jobs["phase_sweep_set"] == 8 and jobs["tabulate_model_mismatch"] == 1
     # The disk and memory it needs, estimated before anything runs.
-    assert "estimated footprint of this run: 2.1 GB on disk for 96 image sets" in run.stdout + run.stderr
+    assert "estimated footprint of this run: 1.9 GB on disk for 96 image sets" in run.stdout + run.stderr
 
 
 def test_dry_run_plans_the_download_when_asked(tmp_path):
