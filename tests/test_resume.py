@@ -112,6 +112,9 @@ def _nothing_half_written(workdir):
     for model in results.glob("reconstruction/*/*/*"):
         if not model.name.startswith("."):
             assert (model / "report.json").is_file() and (model / "model" / "points3D.bin").is_file(), model
+    for features in results.glob("features/*/*"):
+        if not features.name.startswith("."):
+            assert (features / "matches.json").is_file() and (features / "database.db").is_file(), features
     for path in results.rglob("*"):
         if any(part.startswith(".") for part in path.relative_to(results).parts):
             continue  # a temporary name: never read
