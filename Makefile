@@ -2,6 +2,7 @@
 #
 #   make               same as `make reproduce`: the full workflow, then results/report.zip
 #   make test          pytest on tests/ (unit, schema and the small end-to-end run)
+#   make tuning        the tuning grid (config/tuning.yaml: no set of the paper's) in runs/tuning/
 #   make test-cluster  the small config on a one-node SLURM brought up on this machine
 #                      (root; see tests/cluster/run_cluster_test.sh)
 #   make venv          the virtual environment $(VENV) from requirements.txt
@@ -51,11 +52,16 @@ RUN_ENV := export PATH="$(abspath $(VENV))/bin:$$PATH"; \
 SNAKEMAKE := $(VENV)/bin/snakemake --cores $(CORES)
 VENV_STAMP := $(VENV)/.requirements.stamp
 
-.PHONY: reproduce test test-cluster venv sysdeps report summary unlock clean lint footprint help
+.PHONY: reproduce tuning test test-cluster venv sysdeps report summary unlock clean lint footprint help
 
 reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) --rerun-incomplete $(SNAKEMAKE_ARGS)
 	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
+
+# The tuning grid, in its own working directory (its results/ under runs/tuning/), so
+# that it never mixes with the reproduction's.
+tuning: sysdeps venv
+	$(RUN_ENV) $(SNAKEMAKE) --configfile config/tuning.yaml --directory runs/tuning --rerun-incomplete $(SNAKEMAKE_ARGS)
 
 report: venv
 	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
