@@ -264,17 +264,24 @@ def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_imag
     assert json.loads((tmp_path / "reg.json").read_text()) == {"status": "failed", "reason": status["reason"], "registration_ok": False}
     refine_stage(tmp_path / "reg.npz", tmp_path / "model", mission_dir, RECONSTRUCTION, tmp_path / "refined.npz")
     inputs = CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", mission_dir, tmp_path / "refined.npz")
-    estimate_cloud_stage(inputs, "koizumi_lm", RECONSTRUCTION, tmp_path / "estimates.npz")
+    methods = ("varpro", "koizumi_lm")
+    estimates = {method: tmp_path / f"estimates_{method}.npz" for method in methods}
+    estimate_cloud_stage(inputs, RECONSTRUCTION, estimates)
+    for path in estimates.values():  # one failed file per estimator
+        with np.load(path) as data:
+            assert str(data["status"]) == "failed" and str(data["reason"]) == status["reason"]
+    rows = {method: tmp_path / f"row_{method}.json" for method in methods}
     score_cloud_stage(
-        inputs, ScoringInputs(tmp_path / "estimates.npz", tmp_path / "no_shape.npz", tmp_path / "truth.json", four_image_set),
-        "koizumi_lm", "light10_albedo0.6_k0.8", "ideal", "on", RECONSTRUCTION, tmp_path / "row.json", tmp_path / "errors.npz",
+        inputs, ScoringInputs(estimates, tmp_path / "no_shape.npz", tmp_path / "truth.json", four_image_set),
+        "light10_albedo0.6_k0.8", "ideal", "on", RECONSTRUCTION, rows, {method: tmp_path / f"errors_{method}.npz" for method in methods},
     )
-    row = json.loads((tmp_path / "row.json").read_text())
-    assert row == {
-        "set_id": "light10_albedo0.6_k0.8", "priors": "on", "method": "koizumi_lm", "status": f"failed: {status['reason']}", "registration_ok": False,
-        "imaging": "ideal",
-    }
-    write_table2([tmp_path / "row.json"], tmp_path / "table2.csv", tmp_path / "table2.md")
+    for method in methods:
+        assert json.loads(rows[method].read_text()) == {
+            "set_id": "light10_albedo0.6_k0.8", "priors": "on", "method": method, "status": f"failed: {status['reason']}", "registration_ok": False,
+            "imaging": "ideal",
+        }
+    row = json.loads(rows["koizumi_lm"].read_text())
+    write_table2([rows["koizumi_lm"]], tmp_path / "table2.csv", tmp_path / "table2.md")
     assert pd.read_csv(tmp_path / "table2.csv").status.iloc[0] == row["status"]
     assert "0 of 1 sets ok; 1 failed: light10_albedo0.6_k0.8 (reconstruct: pycolmap registered" in (tmp_path / "table2.md").read_text()
 
@@ -298,6 +305,50 @@ def test_a_failed_mission_set_is_passed_on_by_the_features_and_both_reconstructi
         assert json.loads((model_dir / "status.json").read_text()) == status
         with pytest.raises(DataFailure, match="mission: 3 of 3 images are blank"):
             read_reconstruction(model_dir)
+
+
+def test_one_estimators_failure_on_a_cloud_leaves_the_others(tmp_path, monkeypatch):
+    """The estimators of a cloud run in one job: one that fails gets its own failed file and row, the others their own."""
+    from types import SimpleNamespace
+
+    from asteroid_photometry.experiments import table2
+
+    light = cameras.light_dir_cam(10.0)
+    obs = estimation.synthetic_observations(200, 12, light, 0.6, 0.8, np.random.default_rng(0))
+    stage = SimpleNamespace(obs=obs, pure=SimpleNamespace(observations=obs, refined_minnaert_k=0.8, light_dir_cam=light, refined_light_dir_cam=light))
+    run_estimator = table2.run_estimator
+
+    def failing_iwano(obs, method, **options):
+        if method == "iwano_linear":
+            raise DataFailure("no k for the body")
+        return run_estimator(obs, method, **options)
+
+    monkeypatch.setattr(table2, "read_cloud_stage", lambda inputs, settings: stage)
+    monkeypatch.setattr(table2, "run_estimator", failing_iwano)
+    methods = ("varpro", "iwano_linear", "koizumi_lm")  # the failing one between the others
+    estimates = {method: tmp_path / f"{method}.npz" for method in methods}
+    table2.estimate_cloud_stage(None, RECONSTRUCTION, estimates)
+    monkeypatch.undo()
+    with np.load(estimates["iwano_linear"]) as data:
+        assert str(data["status"]) == "failed" and str(data["reason"]) == "estimate_cloud: no k for the body"
+    for method in ("varpro", "koizumi_lm"):
+        with np.load(estimates[method]) as data:
+            assert "status" not in data.files and str(data["before_method"]) == method
+            assert estimation.angle_between_deg(data["after_light_dir_cam"], light) < 0.1
+
+    # Scored where the registration failed: the failed estimator keeps its own reason, the others get the registration's.
+    (tmp_path / "reg.json").write_text(json.dumps({"status": "failed", "reason": "register: no unambiguous registration", "registration_ok": False}))
+    inputs = table2.CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", tmp_path / "mission", tmp_path / "refined.npz")
+    rows = {method: tmp_path / f"{method}.json" for method in methods}
+    table2.score_cloud_stage(
+        inputs, table2.ScoringInputs(estimates, tmp_path / "no_shape.npz", tmp_path / "truth.json", tmp_path / "render"),
+        "light10_albedo0.6_k0.8", "ideal", "on", RECONSTRUCTION, rows, {method: tmp_path / f"errors_{method}.npz" for method in methods},
+    )
+    statuses = {method: json.loads(rows[method].read_text())["status"] for method in methods}
+    assert statuses == {
+        "varpro": "failed: register: no unambiguous registration", "iwano_linear": "failed: estimate_cloud: no k for the body",
+        "koizumi_lm": "failed: register: no unambiguous registration",
+    }
 
 
 def test_a_mission_set_holds_no_truth_and_its_truth_file_does(four_image_set, tmp_path):

@@ -21,9 +21,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SET_ID = "light10_albedo0.6_k0.8"
+ESTIMATORS = ["varpro", "koizumi_lm"]
 TRIM = [
     "light_angles_deg=[10]", "noise_levels=[]", "surface_maps=[]", "geometry_sensitivity={enabled: false}",
-    "estimators=[varpro, koizumi_lm]", "reconstruction={refine_candidates: 20000}", "imaging_conditions=[{name: ideal, prior_sigma_m: 1.0}]",
+    f"estimators=[{', '.join(ESTIMATORS)}]", "reconstruction={refine_candidates: 20000}", "imaging_conditions=[{name: ideal, prior_sigma_m: 1.0}]",
 ]
 # The science tables: the same config must give the same bytes. runtime.csv and fit_timing.csv are wall-clock times.
 SCIENCE_TABLES = ["table1.csv", "table1.md", "table2.csv", "table2.md"]
@@ -170,10 +171,14 @@ def test_killed_run_resumes_to_the_same_tables(first_run, tmp_path):
 
 
 def _running_fit(workdir):
-    """A fit job (Table 1's ``fit`` or Table 2's ``score_cloud``) that has started (its log exists) but not written its summary."""
-    for stage, results in (("fit", "fits"), ("score_cloud", "fits_cloud")):
-        for log_file in (workdir / "logs" / stage).glob("**/*.log"):
-            job = log_file.relative_to(workdir / "logs" / stage).with_suffix(".json")
-            if not (workdir / "results" / results / job).exists():
-                return job
+    """A fit job (Table 1's ``fit``, of one estimator, or Table 2's ``score_cloud``, of all) that has started (its log
+    exists) but not written its summaries."""
+    for log_file in (workdir / "logs" / "fit").glob("**/*.log"):
+        job = log_file.relative_to(workdir / "logs" / "fit").with_suffix(".json")
+        if not (workdir / "results" / "fits" / job).exists():
+            return job
+    for log_file in (workdir / "logs" / "score_cloud").glob("**/*.log"):
+        job = log_file.relative_to(workdir / "logs" / "score_cloud").with_suffix("")
+        if not all((workdir / "results" / "fits_cloud" / job / f"{method}.json").exists() for method in ESTIMATORS):
+            return job
     return None

@@ -40,7 +40,8 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["refine_cloud"] == 2 * 16 * 2
     # Table 2 under two imaging conditions (ideal, amica): a mission set per condition and base set.
     assert jobs["mission"] == 2 * 16
-    assert jobs["estimate_cloud"] == jobs["score_cloud"] == 2 * 16 * 2 * 3
+    # One job per cloud runs (and one scores) all three estimators.
+    assert jobs["estimate_cloud"] == jobs["score_cloud"] == 2 * 16 * 2
     assert jobs["noise_monte_carlo"] == 16
     assert jobs["geometry_sensitivity"] == 16
     # The shape model ships with the workflow: a clone needs no network.

@@ -82,6 +82,13 @@ rule refine_cloud:
         "../scripts/refine_cloud.py"
 
 
+# One job per cloud runs every estimator (config estimators, in order) and scores them: the cloud's inputs, its
+# samples of the images and the truth are read once, not once per estimator. Each estimator keeps its own files.
+CLOUD_ESTIMATES = "results/estimates_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz"
+CLOUD_SUMMARY = "results/fits_cloud/{imaging}/{set_id}/priors-{priors}/{method}.json"
+CLOUD_ERRORS = "results/fits_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz"
+
+
 rule estimate_cloud:
     input:
         registration=rules.register_cloud.output.npz,
@@ -90,13 +97,14 @@ rule estimate_cloud:
         mission=rules.mission.output.mission,
         refined=rules.refine_cloud.output.npz,
     output:
-        estimates="results/estimates_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz",
+        estimates=expand(CLOUD_ESTIMATES, method=ESTIMATORS, allow_missing=True),
     params:
+        methods=ESTIMATORS,
         settings=reconstruction_settings("cloud"),
     log:
-        "logs/estimate_cloud/{imaging}/{set_id}/priors-{priors}/{method}.log",
+        "logs/estimate_cloud/{imaging}/{set_id}/priors-{priors}.log",
     benchmark:
-        "benchmarks/estimate_cloud/{imaging}/{set_id}/priors-{priors}/{method}.tsv"
+        "benchmarks/estimate_cloud/{imaging}/{set_id}/priors-{priors}.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:
@@ -116,14 +124,15 @@ rule score_cloud:
         truth=rules.mission.output.truth,
         render_truth=condition_render_dir,
     output:
-        summary="results/fits_cloud/{imaging}/{set_id}/priors-{priors}/{method}.json",
-        errors="results/fits_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz",
+        summary=expand(CLOUD_SUMMARY, method=ESTIMATORS, allow_missing=True),
+        errors=expand(CLOUD_ERRORS, method=ESTIMATORS, allow_missing=True),
     params:
+        methods=ESTIMATORS,
         settings=reconstruction_settings("cloud"),
     log:
-        "logs/score_cloud/{imaging}/{set_id}/priors-{priors}/{method}.log",
+        "logs/score_cloud/{imaging}/{set_id}/priors-{priors}.log",
     benchmark:
-        "benchmarks/score_cloud/{imaging}/{set_id}/priors-{priors}/{method}.tsv"
+        "benchmarks/score_cloud/{imaging}/{set_id}/priors-{priors}.tsv"
     conda:
         "../../envs/photometry.yaml"
     script:
@@ -132,7 +141,7 @@ rule score_cloud:
 
 rule tabulate_table2:
     input:
-        summaries=expand(rules.score_cloud.output.summary, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
+        summaries=expand(CLOUD_SUMMARY, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
     output:
         csv=report("results/tables/table2.csv", caption="../report/table2.rst", category="Tables"),
         markdown="results/tables/table2.md",
@@ -147,7 +156,7 @@ rule tabulate_table2:
 rule plot_table2:
     input:
         table=rules.tabulate_table2.output.csv,
-        cloud_errors=rules.score_cloud.output.errors.format(
+        cloud_errors=CLOUD_ERRORS.format(
             imaging=TABLE2_PLOT_CONDITION, set_id=TABLE2_PLOT_SET, priors=PRIOR_SETTINGS[0] if PRIOR_SETTINGS else "on", method=TABLE2_PLOT_METHOD
         ),
     output:

@@ -48,8 +48,8 @@ rule tabulate_runtime:
             *expand(rules.reconstruct.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(rules.register_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(rules.refine_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
-            *expand(rules.estimate_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
-            *expand(rules.score_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
+            *expand(rules.estimate_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
+            *expand(rules.score_cloud.benchmark, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS),
             *expand(rules.render_model_set.benchmark, model_set=MODEL_SETS),
             *expand(rules.fit_model_set.benchmark, model_set=CROSS_FIT_SETS),
             *expand(rules.phase_sweep_set.benchmark, model_set=SWEEP_SETS),
@@ -57,7 +57,7 @@ rule tabulate_runtime:
         # The fits' own wall-clock seconds, kept out of the science tables.
         summaries=lambda wildcards: [
             *expand(rules.fit.output.summary, set_id=SETS, method=ESTIMATORS),
-            *expand(rules.score_cloud.output.summary, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
+            *expand(CLOUD_SUMMARY, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
         ],
     output:
         csv=report("results/tables/runtime.csv", caption="../report/runtime.rst", category="Tables"),

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
@@ -349,6 +350,11 @@ class CloudStageInputs:
     mission_dir: str | Path
     refined_npz: str | Path
 
+    @classmethod
+    def from_rule_input(cls, rule_input) -> CloudStageInputs:
+        """The files named as rules ``estimate_cloud`` and ``score_cloud`` name their inputs (``snakemake.input``)."""
+        return cls(rule_input.registration, rule_input.registration_summary, rule_input.model, rule_input.mission, rule_input.refined)
+
 
 @dataclass(frozen=True)
 class CloudStage:
@@ -601,62 +607,126 @@ def fit_from_arrays(data, prefix: str) -> estimation.FitResult:
     return estimation.FitResult(**values)
 
 
-def estimate_cloud_stage(inputs: CloudStageInputs, method: str, settings: dict, out_npz) -> None:
-    """The estimator on the reconstructed cloud, and again on the refined one (``refine_stage``): from the mission set alone.
+def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapping[str, str | Path]) -> None:
+    """Each estimator on the reconstructed cloud, and again on the refined one (``refine_stage``): from the mission set alone.
 
-    Writes the fits of :class:`CloudFits` (``fit_arrays``), the seconds of the
-    fits after refinement and the k Iwano's baseline was given: the
-    refinement's one k for the body, estimated from the images (never the
-    true k). A set that failed here or before gets a file with its status.
+    ``out_npz``: the file of each estimator to run, by name, in the order they
+    run. The stage's inputs are read once for all of them. Each file holds
+    the fits of :class:`CloudFits` (``fit_arrays``), the seconds of the fits
+    after refinement and the k Iwano's baseline was given: the refinement's
+    one k for the body, estimated from the images (never the true k). A set
+    that failed here or before gets, for every estimator, a file with its
+    status; an estimator that fails gets its own, and the others still run.
     """
     try:
         stage = read_cloud_stage(inputs, settings)
-        known_k = float(stage.pure.refined_minnaert_k)  # the workflow's own k for the body (refine_stage), for Iwano's baseline
-        before = estimate_before_refinement(stage, method, known_k)
-        after, joint, refit_seconds = estimate_after_refinement(stage, method, known_k)
     except DataFailure as failure:
-        write_failed_npz(out_npz, record("estimate_cloud", failure))
+        reason = record("estimate_cloud", failure)
+        for path in out_npz.values():
+            write_failed_npz(path, reason)
         return
-    files.savez(
-        out_npz, **fit_arrays(before, "before"), **fit_arrays(after, "after"), **fit_arrays(joint, "joint"),
-        refit_seconds=refit_seconds, known_k=known_k,
-    )
-    log.info("%s: light %s before refinement, %s after", method, np.round(before.light_dir_cam, 6).tolist(), np.round(after.light_dir_cam, 6).tolist())
+    known_k = float(stage.pure.refined_minnaert_k)  # the workflow's own k for the body (refine_stage), for Iwano's baseline
+    for method, path in out_npz.items():
+        try:
+            before = estimate_before_refinement(stage, method, known_k)
+            after, joint, refit_seconds = estimate_after_refinement(stage, method, known_k)
+        except DataFailure as failure:
+            log.warning("%s: no fit", method)
+            write_failed_npz(path, record("estimate_cloud", failure))
+            continue
+        files.savez(
+            path, **fit_arrays(before, "before"), **fit_arrays(after, "after"), **fit_arrays(joint, "joint"),
+            refit_seconds=refit_seconds, known_k=known_k,
+        )
+        log.info("%s: light %s before refinement, %s after", method, np.round(before.light_dir_cam, 6).tolist(), np.round(after.light_dir_cam, 6).tolist())
 
 
 @dataclass(frozen=True)
 class ScoringInputs:
-    """The files the scoring stage reads besides :class:`CloudStageInputs`: the estimates (``estimate_cloud_stage``),
-    the shape model, the mission set's truth file and the rendered set (truth)."""
+    """The files the scoring stage reads besides :class:`CloudStageInputs`: the estimates (``estimate_cloud_stage``'s
+    file of each estimator, by name, in the order the rows are written), the shape model, the mission set's truth file
+    and the rendered set (truth)."""
 
-    estimates_npz: str | Path
+    estimates_npz: Mapping[str, str | Path]
     shape_npz: str | Path
     truth_json: str | Path
     render_dir: str | Path
 
+    @classmethod
+    def from_rule_input(cls, rule_input, methods) -> ScoringInputs:
+        """The files named as rule ``score_cloud`` names its inputs (``snakemake.input``); its ``estimates``, those of ``methods`` in order."""
+        if len(rule_input.estimates) != len(methods):
+            raise ValueError(f"{len(rule_input.estimates)} estimate files for {len(methods)} estimators {list(methods)}")
+        return cls(dict(zip(methods, rule_input.estimates)), rule_input.shape, rule_input.truth, rule_input.render_truth)
+
+
+class _Once:
+    """A value computed at its first use and kept; a :class:`DataFailure` computing it is kept too, and raised at every use."""
+
+    def __init__(self, compute):
+        self._compute, self._value, self._failure = compute, None, None
+        self._done = False
+
+    def __call__(self):
+        if not self._done:
+            try:
+                self._value = self._compute()
+            except DataFailure as failure:
+                self._failure = failure
+            self._done = True
+        if self._failure is not None:
+            raise self._failure
+        return self._value
+
+
+@dataclass(frozen=True)
+class _SharedScoring:
+    """What the rows of one cloud share, each read or computed once, when a row first needs it: the stage, the
+    truth, and the truth at the cloud's and the refined cloud's points."""
+
+    stage: _Once
+    scoring: _Once
+    truth: _Once
+    truth_refined: _Once
+
+    @classmethod
+    def of(cls, inputs: CloudStageInputs, scoring_inputs: ScoringInputs, settings: dict) -> _SharedScoring:
+        stage = _Once(lambda: read_cloud_stage(inputs, settings, observations=False))
+        scoring = _Once(lambda: read_scoring_truth(scoring_inputs.shape_npz, scoring_inputs.truth_json, scoring_inputs.render_dir))
+        truth = _Once(lambda: truth_at_points(scoring(), stage().transform, stage().oriented.points))
+        truth_refined = _Once(lambda: truth_at_points(scoring(), stage().transform, stage().pure.points))
+        return cls(stage, scoring, truth, truth_refined)
+
 
 def score_cloud_stage(
-    inputs: CloudStageInputs, scoring_inputs: ScoringInputs, method: str, set_id: str, imaging: str, priors: str, settings: dict, out_json, out_npz,
+    inputs: CloudStageInputs, scoring_inputs: ScoringInputs, set_id: str, imaging: str, priors: str, settings: dict,
+    out_json: Mapping[str, str | Path], out_npz: Mapping[str, str | Path],
 ) -> None:
-    """The estimates on one cloud scored against the truth: the set's row of Table 2 (``out_json``) and its per-point errors (``out_npz``).
+    """The estimates on one cloud scored against the truth: each estimator's row of Table 2 (``out_json``, by
+    estimator as ``scoring_inputs.estimates_npz``) and its per-point errors (``out_npz``).
 
-    A set that failed here or before (reconstruction, registration,
-    refinement, estimates) gets a row with its ``status`` (the reason), what
-    is known of its reconstruction and registration, and no estimates.
+    The stage and the truth are read once for all the rows. A set that failed
+    here or before (reconstruction, registration, refinement, estimates) gets
+    a row with its ``status`` (the reason), what is known of its
+    reconstruction and registration, and no estimates; one estimator's
+    failure leaves the others' rows as they are.
     """
-    try:
-        row, errors = _score_cloud(inputs, scoring_inputs, method, set_id, priors, settings)
-    except DataFailure as failure:
-        reason = record("score_cloud", failure)
-        row = _failed_row(inputs, method, set_id, priors, reason)
+    shared = _SharedScoring.of(inputs, scoring_inputs, settings)
+    for method, estimates_npz in scoring_inputs.estimates_npz.items():
+        try:
+            row, errors = _score_cloud(estimates_npz, shared, method, set_id, priors, settings)
+        except DataFailure as failure:
+            log.warning("%s: no row", method)
+            reason = record("score_cloud", failure)
+            row = _failed_row(inputs, method, set_id, priors, reason)
+            row["imaging"] = imaging
+            write_failed_npz(out_npz[method], reason)
+            files.write_json(out_json[method], row)
+            continue
         row["imaging"] = imaging
-        write_failed_npz(out_npz, reason)
-        files.write_json(out_json, row)
-        return
-    row["imaging"] = imaging
-    files.write_json(out_json, row)
-    files.savez(out_npz, **errors)
-    log.info("table 2 row: %s", json.dumps(row))
+        files.write_json(out_json[method], row)
+        files.savez(out_npz[method], **errors)
+        log.info("table 2 row: %s", json.dumps(row))
 
 
 def _failed_row(inputs: CloudStageInputs, method: str, set_id: str, priors: str, reason: str) -> dict:
@@ -671,19 +741,17 @@ def _failed_row(inputs: CloudStageInputs, method: str, set_id: str, priors: str,
     return row
 
 
-def _score_cloud(inputs: CloudStageInputs, scoring_inputs: ScoringInputs, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
-    """The set's row and its per-point errors: the estimates read, the truth looked up at the points, the scores."""
-    with np.load(scoring_inputs.estimates_npz) as data:
-        check_npz(data, scoring_inputs.estimates_npz)
+def _score_cloud(estimates_npz, shared: _SharedScoring, method: str, set_id: str, priors: str, settings: dict) -> tuple[dict, dict]:
+    """One estimator's row and its per-point errors: its estimates read, the truth at the points (``shared``), the scores."""
+    with np.load(estimates_npz) as data:
+        check_npz(data, estimates_npz)
         before, after, joint = (fit_from_arrays(data, prefix) for prefix in FIT_STAGES)
         refit_seconds, known_k = float(data["refit_seconds"]), float(data["known_k"])
-    stage = read_cloud_stage(inputs, settings, observations=False)
-    scoring = read_scoring_truth(scoring_inputs.shape_npz, scoring_inputs.truth_json, scoring_inputs.render_dir)
-    truth = truth_at_points(scoring, stage.transform, stage.oriented.points)
-    # A fit of no point fails the set here.
+    stage, scoring, truth = shared.stage(), shared.scoring(), shared.truth()
+    # A fit of no point fails the row here.
     row = metrics.summary_row(set_id, before, truth.scoring(truth.light_dir_cam))
     fits = CloudFits(before, after, joint, refit_seconds)
-    truth_refined = truth_at_points(scoring, stage.transform, stage.pure.points)
+    truth_refined = shared.truth_refined()
     scores, errors = refinement_scores(set_id, priors, method, stage, fits, scoring, truth, truth_refined)
     row.update(scores)
     report = stage.report
