@@ -13,7 +13,7 @@ sys.path.insert(0, str(REPO / "workflow"))
 from asteroid_photometry.core.config import SCHEMA_PATH, ConfigError, load_schema, validate_config  # noqa: E402
 
 LAWS = ["lambert", "lommel_seeliger", "lunar_lambert", "minnaert", "hapke"]
-SHIPPED_CONFIGS = [REPO / "config" / "config.yaml", REPO / "config" / "test.yaml", REPO / "config" / "tuning.yaml"]
+SHIPPED_CONFIGS = [REPO / "config" / "config.yaml", REPO / "config" / "test.yaml", REPO / "config" / "tuning.yaml", REPO / "config" / "amica_ablation.yaml"]
 
 
 def _load(path):
