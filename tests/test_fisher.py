@@ -181,3 +181,40 @@ def test_varpro_is_efficient_under_the_sensor_noise_model():
 def test_module_exports_exist():
     for name in fisher.__all__:
         assert hasattr(fisher, name)
+
+
+def test_table2s_light_bound_follows_the_mission_sensor_and_is_absent_without_one():
+    """Table 2's Cramer-Rao deviation of the light: from the mission's sensor model alone; ten times the electrons, about a third of it."""
+    from types import SimpleNamespace
+
+    from asteroid_photometry.estimation.registry import run_estimator
+    from asteroid_photometry.experiments.table2 import light_bound_deg
+
+    obs = synthetic_observations(300, 10, light_at(10.0), 0.5, 0.8, np.random.default_rng(3))
+    fit = run_estimator(obs, "koizumi_lm")
+    settings = {"min_observations_per_point": 4}
+
+    def stage(full_well_e):
+        sensor = None if full_well_e is None else {
+            "name": "test", "full_well_e": full_well_e, "read_noise_e": 0.0, "bit_depth": 16, "radiance_at_full_well": 1.0,
+        }
+        return SimpleNamespace(mission={"sensor": sensor}, pure=SimpleNamespace(observations=obs))
+
+    coarse, fine = light_bound_deg(stage(30000.0), fit, settings), light_bound_deg(stage(300000.0), fit, settings)
+    assert 0.0 < fine < coarse
+    assert coarse / fine == pytest.approx(np.sqrt(10.0), rel=0.05)
+    assert np.isnan(light_bound_deg(stage(None), fit, settings))
+
+
+def test_table2s_light_bound_is_raised_only_where_the_noise_allows_less():
+    """light_err_over_bound_final: the error over the condition's bound, or over three Cramer-Rao deviations if that is larger."""
+    import pandas as pd
+
+    from asteroid_photometry.experiments.table2 import light_err_over_bound
+
+    table = pd.DataFrame({
+        "imaging": ["amica", "amica", "ideal", "amica"],
+        "light_dir_err_deg_final": [1.3, 1.3, 0.4, -0.5],
+        "light_crb_deg_final": [0.5, 0.2, np.nan, np.nan],
+    })
+    assert light_err_over_bound(table).tolist() == pytest.approx([1.3 / 1.5, 1.3, 0.8, 0.5])

@@ -38,6 +38,7 @@ from asteroid_photometry.core.failures import (
     write_failed_npz,
     write_status_json,
 )
+from asteroid_photometry.estimation.fisher import cramer_rao_bounds
 from asteroid_photometry.estimation.registry import run_estimator
 from asteroid_photometry.evaluation import metrics, quality
 from asteroid_photometry.evaluation.truth import rendered_truth, true_poses, truth_for_facets
@@ -607,6 +608,28 @@ def fit_from_arrays(data, prefix: str) -> estimation.FitResult:
     return estimation.FitResult(**values)
 
 
+def light_bound_deg(stage: CloudStage, fit: estimation.FitResult, settings: dict) -> float:
+    """The Cramer-Rao standard deviation (deg) of the light for the refined cloud's pure samples under the mission's sensor noise.
+
+    The bound of any unbiased estimate of the light from the observations
+    the final fit used (``stage.pure``), with an albedo and a k per point
+    and the normals held, evaluated at that fit (``estimation.fisher``); the
+    variance of each sample is the sensor model's for the mean of four
+    pixels (``purity.PurityTest.sample_variance``). NaN for noise-free
+    images (no sensor model: nothing bounds the error but the model itself)
+    or a fit of no point. No truth is read.
+    """
+    sensor = stage.mission.get("sensor")
+    if not sensor or fit.n_points_fitted == 0:
+        return float("nan")
+    observations = stage.pure.observations
+    variance = PurityTest(sensor_from_config(sensor)).sample_variance(observations.brightness)
+    bounds = cramer_rao_bounds(
+        observations, fit.light_dir_cam, fit.albedo, fit.minnaert_k, variance, min_observations=settings["min_observations_per_point"],
+    )
+    return float(bounds["light_std_deg"])
+
+
 def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapping[str, str | Path]) -> None:
     """Each estimator on the reconstructed cloud, and again on the refined one (``refine_stage``): from the mission set alone.
 
@@ -636,7 +659,7 @@ def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapp
             continue
         files.savez(
             path, **fit_arrays(before, "before"), **fit_arrays(after, "after"), **fit_arrays(joint, "joint"),
-            refit_seconds=refit_seconds, known_k=known_k,
+            refit_seconds=refit_seconds, known_k=known_k, after_light_crb_deg=light_bound_deg(stage, after, settings),
         )
         log.info("%s: light %s before refinement, %s after", method, np.round(before.light_dir_cam, 6).tolist(), np.round(after.light_dir_cam, 6).tolist())
 
@@ -747,6 +770,7 @@ def _score_cloud(estimates_npz, shared: _SharedScoring, method: str, set_id: str
         check_npz(data, estimates_npz)
         before, after, joint = (fit_from_arrays(data, prefix) for prefix in FIT_STAGES)
         refit_seconds, known_k = float(data["refit_seconds"]), float(data["known_k"])
+        light_crb_deg = float(data["after_light_crb_deg"]) if "after_light_crb_deg" in data.files else float("nan")
     stage, scoring, truth = shared.stage(), shared.scoring(), shared.truth()
     # A fit of no point fails the row here.
     row = metrics.summary_row(set_id, before, truth.scoring(truth.light_dir_cam))
@@ -762,6 +786,7 @@ def _score_cloud(estimates_npz, shared: _SharedScoring, method: str, set_id: str
     row.update(quality.camera_errors(stage.recon.body_to_camera(), true_poses(scoring.truth), stage.recon.prior_positions, report["world_frame"]))
     row.update(stage.registration)
     row["status"] = table_status()
+    row["light_crb_deg_final"] = light_crb_deg
     if method == "iwano_linear":
         row["known_k"] = known_k
         row["known_k_err"] = known_k - float(np.median(truth.minnaert_k))
@@ -773,6 +798,20 @@ def _score_cloud(estimates_npz, shared: _SharedScoring, method: str, set_id: str
 TABLE2_LEAD = ["set_id", "imaging", "priors", "method", "status"]
 #: The final estimate of every row: after every stage, the refinement included.
 FINAL_COLUMNS = {"light_dir_err_deg_final": "light_dir_err_deg_refined", "albedo_err_final": "albedo_err_refined", "k_err_final": "k_err_refined"}
+#: The final light error over its bound (:func:`light_err_over_bound`), and the Cramer-Rao deviation that bound allows for.
+BOUND_COLUMNS = ["light_err_over_bound_final", "light_crb_deg_final"]
+#: How many Cramer-Rao standard deviations the light's bound allows where the noise alone allows less than the fixed bound.
+CRB_FACTOR = 3.0
+
+
+def light_err_over_bound(table: pd.DataFrame) -> pd.Series:
+    """Each row's final light error over its bound: the condition's (``metrics.table2_bounds``), or, where the noise
+    alone allows less, ``CRB_FACTOR`` times the Cramer-Rao deviation of the light for the observations used
+    (``light_crb_deg_final``, NaN for noise-free images). 1 or less is within the bound."""
+    fixed = table["imaging"].map(lambda imaging: metrics.table2_bounds(imaging)["light_dir_err_deg"]).astype(float)
+    crb = table["light_crb_deg_final"] if "light_crb_deg_final" in table else pd.Series(np.nan, index=table.index)
+    bound = np.fmax(fixed, CRB_FACTOR * crb.astype(float))
+    return table["light_dir_err_deg_final"].abs() / bound
 
 
 def write_table2(summary_paths, out_csv, out_markdown) -> None:
@@ -780,7 +819,10 @@ def write_table2(summary_paths, out_csv, out_markdown) -> None:
     table = metrics.without_timings(pd.DataFrame(rows))
     for final, source in FINAL_COLUMNS.items():
         table[final] = table[source] if source in table else np.nan
-    lead = TABLE2_LEAD + list(FINAL_COLUMNS)
+    if "light_crb_deg_final" not in table:
+        table["light_crb_deg_final"] = np.nan
+    table["light_err_over_bound_final"] = light_err_over_bound(table)
+    lead = TABLE2_LEAD + list(FINAL_COLUMNS) + BOUND_COLUMNS
     table = table[lead + [c for c in table if c not in lead]].sort_values(TABLE2_LEAD[:4], kind="stable")
     files.write_csv(table, out_csv)
     files.write_text(out_markdown, table2_markdown(table))
