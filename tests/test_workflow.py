@@ -225,6 +225,11 @@ def test_small_run_table2_from_images_alone(small_run):
     amica_paper = amica[amica.method == "koizumi_lm"]
     assert (amica_paper.light_dir_err_deg_final < 2.5).all()
     assert (amica_paper.albedo_err_final.abs() < 0.02).all() and (amica_paper.k_err_final.abs() < 0.04).all()
+    # The light's Cramer-Rao deviation for the samples used, from the mission's sensor: present under amica, absent
+    # without a sensor (ideal); the over-bound column is the error over the larger of 1 deg and three deviations.
+    assert (amica.light_crb_deg_final > 0).all() and table.light_crb_deg_final.isna().all()
+    bound = np.fmax(1.0, 3.0 * amica.light_crb_deg_final)
+    assert np.allclose(amica.light_err_over_bound_final, amica.light_dir_err_deg_final.abs() / bound)
     # Iwano's baseline is given the refinement's own k, never the truth: its error is in the row.
     baseline = everything[everything.method == "iwano_linear"]
     assert baseline.known_k_err.notna().all() and (baseline.known_k_err != 0).all()
