@@ -88,7 +88,8 @@ def render_set(
             shape["vertices_m"], shape["faces"], levels=int(relief_spec["subdivisions"]), rms_slope_deg=float(relief_spec["rms_slope_deg"]),
             seed=int(relief_spec["seed"]),
         )
-        slope = relief.achieved_rms_slope_deg(vertices, faces, parent_facet, shape["normals"])
+        # As relief_mesh weighs it: by the face's area before the relief, its shape-model facet's over 4**subdivisions.
+        slope = relief.achieved_rms_slope_deg(vertices, faces, parent_facet, shape["normals"], weights=shape["areas_m2"][parent_facet])
         condition_record["relief"] = {**relief_spec, "achieved_rms_slope_deg": slope, "faces": len(faces)}
         log.info("relief: %d faces from %d facets, RMS slope %.3f deg against them", len(faces), len(shape["faces"]), slope)
     part = files.partial_directory(out_dir)
