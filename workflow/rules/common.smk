@@ -123,14 +123,8 @@ def condition_cameras(wildcards):
     return CONDITION_CAMERAS.format(latitude=f"{condition_latitude(wildcards.imaging):g}")
 
 
-def condition_render_spec(wildcards):
-    """What a condition changes in the render beyond the cameras: the Sun's tilt out of the camera's x-z plane, the relief."""
-    entry = CONDITIONS[wildcards.imaging]
-    return {"light_out_of_plane_deg": entry["light_out_of_plane_deg"], "relief_spec": entry["relief"]}
-
-
 def mission_condition(wildcards):
-    """The condition as the mission rule takes it: without its relief, which only the renderer reads (a relief
+    """The condition as the mission stage takes it, without its relief, which only the renderer reads (a relief
     changed or added renders the sets again, and the mission sets follow through their input)."""
     return {key: value for key, value in CONDITIONS[wildcards.imaging].items() if key != "relief"}
 

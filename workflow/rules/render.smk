@@ -39,7 +39,8 @@ rule render_condition:
     params:
         image_set=image_set,
         surface_map=surface_map_spec,
-        condition=condition_render_spec,
+        light_out_of_plane_deg=lambda wildcards: CONDITIONS[wildcards.imaging]["light_out_of_plane_deg"],
+        relief=lambda wildcards: CONDITIONS[wildcards.imaging]["relief"],
         samples_per_pixel=config["samples_per_pixel"],
         mitsuba_variant=config["mitsuba_variant"],
     threads: 2
@@ -50,7 +51,7 @@ rule render_condition:
     conda:
         "../../envs/photometry.yaml"
     script:
-        "../scripts/render.py"
+        "../scripts/render_condition.py"
 
 
 # The cameras of an imaging condition whose views lie at another latitude.

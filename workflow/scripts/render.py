@@ -1,4 +1,4 @@
-"""Rule script: render the images of one set with the Mitsuba Minnaert BSDF (rules render and render_condition)."""
+"""Rule script: render the images of one set with the Mitsuba Minnaert BSDF."""
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.core.logs import setup_logging
@@ -14,6 +14,4 @@ render_set(
     snakemake.output.images,  # noqa: F821
     threads=snakemake.threads,  # noqa: F821
     surface_map=snakemake.params.surface_map,  # noqa: F821
-    # Rule render_condition: an imaging condition's Sun and relief (its cameras come as input).
-    **snakemake.params.get("condition", {}),  # noqa: F821
 )
