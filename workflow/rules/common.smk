@@ -17,8 +17,8 @@ WORKFLOW_DIR = Path(_basedir).resolve().parent
 if str(WORKFLOW_DIR) not in sys.path:
     sys.path.insert(0, str(WORKFLOW_DIR))
 
-from asteroid_photometry.core.config import table2_conditions, validate_config, ConfigError
-from asteroid_photometry.world.image_sets import condition_rendered_set, image_sets, named_entry, renders_own_sets
+from asteroid_photometry.core.config import renders_own_sets, table2_conditions, validate_config, ConfigError
+from asteroid_photometry.world.image_sets import condition_rendered_set, image_sets, named_entry
 from asteroid_photometry.world.shape import get_shape_model_spec
 from asteroid_photometry.experiments.mismatch import model_sets
 from asteroid_photometry.experiments.table2 import stage_settings
