@@ -32,6 +32,7 @@ localrules:
     fetch_shape_model,
     prepare_shape,
     imaging_geometry,
+    condition_geometry,
     tabulate_table1,
     plot_table1,
     tabulate_runtime,

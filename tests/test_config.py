@@ -13,7 +13,10 @@ sys.path.insert(0, str(REPO / "workflow"))
 from asteroid_photometry.core.config import SCHEMA_PATH, ConfigError, load_schema, validate_config  # noqa: E402
 
 LAWS = ["lambert", "lommel_seeliger", "lunar_lambert", "minnaert", "hapke"]
-SHIPPED_CONFIGS = [REPO / "config" / "config.yaml", REPO / "config" / "test.yaml", REPO / "config" / "tuning.yaml", REPO / "config" / "amica_ablation.yaml"]
+SHIPPED_CONFIGS = [
+    REPO / "config" / "config.yaml", REPO / "config" / "test.yaml", REPO / "config" / "tuning.yaml", REPO / "config" / "amica_ablation.yaml",
+    REPO / "config" / "conditions_geometry.yaml",
+]
 
 
 def _load(path):
@@ -36,7 +39,7 @@ def _error(config):
 
 def _walk_object_schemas(schema, path="<top level>"):
     """Yield (key path, schema) for every object schema, the top level included."""
-    if schema.get("type") == "object":
+    if "object" in ([schema["type"]] if isinstance(schema.get("type"), str) else schema.get("type", [])):
         yield path, schema
     for key, subschema in schema.get("properties", {}).items():
         yield from _walk_object_schemas(subschema, key if path == "<top level>" else f"{path}.{key}")
@@ -47,7 +50,7 @@ def _walk_object_schemas(schema, path="<top level>"):
 def test_schema_forbids_unknown_keys_and_describes_every_key():
     schema = load_schema()
     objects = list(_walk_object_schemas(schema))
-    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "imaging_conditions[]", "reconstruction", "geometry_sensitivity",
+    assert [path for path, _ in objects] == ["<top level>", "observations", "noise_levels[]", "noise_monte_carlo", "surface_maps[]", "imaging_conditions[]", "imaging_conditions[].relief", "reconstruction", "geometry_sensitivity",
         "model_mismatch", "model_mismatch.parameters", *(f"model_mismatch.parameters.{law}" for law in LAWS),
         "model_mismatch.fit", *(f"model_mismatch.fit.{law}" for law in LAWS),
     ]
@@ -189,6 +192,58 @@ def test_every_problem_is_reported_at_once(test_config):
     assert message.startswith("3 config problems:")
     for key in ["'n_images'", "'foo'", "'observations.min_cos_emission'"]:
         assert key in message
+
+
+# --- imaging conditions of their own views, Sun and relief -----------------------------
+
+
+def _with_condition(config, **keys):
+    config["imaging_conditions"] = [{"name": "other", **keys}]
+    return config
+
+
+RELIEF = {"subdivisions": 1, "rms_slope_deg": 3, "seed": 0}
+
+
+def test_conditions_of_their_own_views_sun_and_relief_validate(test_config):
+    config = validate_config(_with_condition(test_config, view_latitude_deg=20, light_out_of_plane_deg=-20, relief=dict(RELIEF)))
+    entry = config["imaging_conditions"][0]
+    assert (entry["view_latitude_deg"], entry["light_out_of_plane_deg"]) == (20, -20)
+    assert entry["relief"] == RELIEF
+    assert validate_config(_with_condition(test_config))["imaging_conditions"][0]["relief"] is None
+
+
+@pytest.mark.parametrize(
+    "keys, expected",
+    [
+        (dict(view_latitude_deg=85), "config key 'imaging_conditions[0].view_latitude_deg': 85 is greater than the maximum of 80"),
+        (dict(light_out_of_plane_deg="up"), "config key 'imaging_conditions[0].light_out_of_plane_deg': 'up' is not of type 'number'"),
+        (dict(relief={**RELIEF, "rms_slope_deg": 50}), "config key 'imaging_conditions[0].relief.rms_slope_deg': 50 is greater than or equal to the maximum of 45"),
+        (dict(relief={**RELIEF, "rms_slope_deg": 0}), "config key 'imaging_conditions[0].relief.rms_slope_deg': 0 is less than or equal to the minimum of 0"),
+        (dict(relief={**RELIEF, "subdivisions": 4}), "config key 'imaging_conditions[0].relief.subdivisions': 4 is greater than the maximum of 3"),
+        (dict(relief={"subdivisions": 1, "seed": 0}), "missing required config key(s): 'imaging_conditions[0].relief.rms_slope_deg'"),
+        (dict(relief={**RELIEF, "levels": 1}), "unknown config key(s): 'imaging_conditions[0].relief.levels'"),
+        (dict(relief=3.0), "config key 'imaging_conditions[0].relief': 3.0 is not of type 'object', 'null'"),
+    ],
+)
+def test_a_wrong_condition_geometry_or_relief_is_rejected_naming_the_key(test_config, keys, expected):
+    assert expected in _error(_with_condition(test_config, **keys))
+
+
+def test_the_views_latitude_is_the_configs_plus_the_conditions_and_must_stay_in_range(test_config):
+    test_config["view_latitude_deg"] = 70.0
+    message = _error(_with_condition(test_config, view_latitude_deg=20))
+    assert message.startswith("config key 'imaging_conditions[0]' (other): view_latitude_deg 20 puts the views at latitude 90")
+    assert "config key 'view_latitude_deg'" in message and "[-80, 80]" in message
+    test_config["view_latitude_deg"] = 50.0
+    assert validate_config(_with_condition(test_config, view_latitude_deg=20))["imaging_conditions"][0]["view_latitude_deg"] == 20
+
+
+def test_the_sun_out_of_plane_keeps_the_phase_angle_within_the_light_angles_range(test_config):
+    test_config["light_angles_deg"] = [0, 75]
+    message = _error(_with_condition(test_config, light_out_of_plane_deg=-50))
+    assert message.startswith("config key 'imaging_conditions[0]' (other): light_out_of_plane_deg -50 with the light angles [0, 75] gives a phase angle of 80.4")
+    assert validate_config(_with_condition(test_config, light_out_of_plane_deg=-40))
 
 
 def test_non_mapping_config_is_rejected():

@@ -17,7 +17,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 #: The simulation of the world: they make the truth and the mission sets from it.
-WORLD_RULES = {"fetch_shape_model", "prepare_shape", "imaging_geometry", "render", "add_noise", "mission"}
+WORLD_RULES = {"fetch_shape_model", "prepare_shape", "imaging_geometry", "condition_geometry", "render", "render_condition", "add_noise", "mission"}
 #: The image-only path of Table 2, up to its estimates.
 IMAGE_ONLY_RULES = {"match_features", "reconstruct", "register_cloud", "refine_cloud", "estimate_cloud"}
 JOB_HEADER = re.compile(r"^(?:local)?rule (\w+):$")
@@ -66,9 +66,20 @@ def truth_readers(jobs: list[dict]) -> dict[str, set]:
     return readers
 
 
-@pytest.fixture(scope="module", params=["test.yaml", "config.yaml"])
+_DRY_RUNS = {}
+
+
+def config_jobs(name: str, tmp_path_factory) -> list[dict]:
+    """The jobs of one shipped config's forced dry run, run once per module."""
+    if name not in _DRY_RUNS:
+        _DRY_RUNS[name] = dry_run_jobs(REPO / "config" / name, tmp_path_factory.mktemp("dag"))
+    return _DRY_RUNS[name]
+
+
+# conditions_geometry.yaml: conditions of their own views, Sun and relief, rendered by rule render_condition.
+@pytest.fixture(scope="module", params=["test.yaml", "config.yaml", "conditions_geometry.yaml"])
 def jobs(request, tmp_path_factory):
-    return dry_run_jobs(REPO / "config" / request.param, tmp_path_factory.mktemp("dag"))
+    return config_jobs(request.param, tmp_path_factory)
 
 
 def test_no_job_upstream_of_an_estimate_reads_truth_but_the_world(jobs):
@@ -92,5 +103,23 @@ def test_the_world_writes_the_mission_set_and_the_truth_apart(jobs):
         truth = [path for path in job["output"] if "truth" in path]
         mission = [path for path in job["output"] if "truth" not in path]
         assert len(truth) == 1 and len(mission) == 1 and mission[0].startswith("results/mission/")
-    for job in (job for job in jobs if job["rule"] in ("render", "add_noise", "imaging_geometry")):
+    for job in (job for job in jobs if job["rule"] in ("render", "render_condition", "add_noise", "imaging_geometry", "condition_geometry")):
         assert all("truth" in path for path in job["output"]), job
+
+
+def test_conditions_of_their_own_views_sun_and_relief_render_their_own_sets_and_start_and_score_from_them(tmp_path_factory):
+    """conditions_geometry.yaml: amica starts from the base sets' surface-map renders; oblique (latitude 20, Sun out of
+    plane) and relief render their own copy of each, oblique at its own cameras; each condition's mission and scoring
+    read its own render."""
+    jobs = config_jobs("conditions_geometry.yaml", tmp_path_factory)
+    base_sets = ["light0_albedo0.6_k0.8", "light10_albedo0.6_k0.8"]
+    renders = {job["output"][0]: job["input"] for job in jobs if job["rule"] == "render_condition"}
+    assert sorted(renders) == sorted(f"results/truth/render/{set_id}_map-field_imaging-{name}" for set_id in base_sets for name in ("oblique", "relief"))
+    for output, inputs in renders.items():
+        cameras = "results/truth/geometry/cameras_lat20.json" if output.endswith("oblique") else "results/truth/geometry/cameras.json"
+        assert inputs == ["results/shape/model.npz", cameras]
+    assert [job["output"] for job in jobs if job["rule"] == "condition_geometry"] == [["results/truth/geometry/cameras_lat20.json"]]
+    for rule in ("mission", "score_cloud"):
+        read = {(job["output"][0].split("/")[2], path) for job in jobs if job["rule"] == rule for path in job["input"] if path.startswith("results/truth/render/")}
+        assert read == {(name, f"results/truth/render/{set_id}_map-field" + ("" if name == "amica" else f"_imaging-{name}"))
+                        for set_id in base_sets for name in ("amica", "oblique", "relief")}, rule

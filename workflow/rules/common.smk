@@ -17,8 +17,8 @@ WORKFLOW_DIR = Path(_basedir).resolve().parent
 if str(WORKFLOW_DIR) not in sys.path:
     sys.path.insert(0, str(WORKFLOW_DIR))
 
-from asteroid_photometry.core.config import table2_conditions, validate_config, ConfigError
-from asteroid_photometry.world.image_sets import image_sets, named_entry
+from asteroid_photometry.core.config import renders_own_sets, table2_conditions, validate_config, ConfigError
+from asteroid_photometry.world.image_sets import condition_rendered_set, image_sets, named_entry
 from asteroid_photometry.world.shape import get_shape_model_spec
 from asteroid_photometry.experiments.mismatch import model_sets
 from asteroid_photometry.experiments.table2 import stage_settings
@@ -42,6 +42,8 @@ CONDITIONS = table2_conditions(config)
 _CONDITIONS_OFF = sorted({entry["name"] for entry in config["imaging_conditions"]} - set(CONDITIONS)) if PRIOR_SETTINGS else []
 if _CONDITIONS_OFF:
     logger.info(f"imaging conditions off (the noise level or surface map they need is turned off): {', '.join(_CONDITIONS_OFF)}")
+# The conditions that render their own copy of every set they start from (views, Sun or relief of their own).
+OWN_RENDER_CONDITIONS = [name for name, entry in CONDITIONS.items() if renders_own_sets(entry)]
 # The cloud drawn in Table 2's figure: the first condition's.
 TABLE2_PLOT_CONDITION = next(iter(CONDITIONS), "ideal")
 # An empty noise_levels turns the noise off, and the noise Monte Carlo with it.
@@ -86,6 +88,7 @@ wildcard_constraints:
     sweep="|".join(SWEEPS) or "none",
     priors="on|off",
     imaging="|".join(CONDITIONS) or "none",
+    latitude="-?[0-9.e+-]+",
 
 
 # A set's rendered images and the renderer's record of them (true poses, light, albedo, k): written by rule
@@ -95,10 +98,35 @@ RENDERED_SET_DIR = "results/truth/render/{set_id}"
 MISSION_SET_DIR = "results/mission/{imaging}/{set_id}"
 
 
+# A set rendered anew for an imaging condition of its own views, Sun or relief (rule render_condition), from
+# the base set or its surface-map variant (``set_id``); truth as RENDERED_SET_DIR.
+CONDITION_RENDER_DIR = RENDERED_SET_DIR.format(set_id="{set_id}_imaging-{imaging}")
+# The cameras of a condition whose views lie at another latitude (rule condition_geometry).
+CONDITION_CAMERAS = "results/truth/geometry/cameras_lat{latitude}.json"
+
+
 def condition_render_dir(wildcards):
-    """The rendered set an imaging condition starts from: the base set, or its variant with the condition's surface map."""
-    surface_map = CONDITIONS[wildcards.imaging].get("surface_map")
-    return RENDERED_SET_DIR.format(set_id=wildcards.set_id + (f"_map-{surface_map}" if surface_map else ""))
+    """The rendered set an imaging condition starts from: the base set, or its variant with the condition's surface map,
+    or the condition's own render of either (world.image_sets.condition_rendered_set)."""
+    return RENDERED_SET_DIR.format(set_id=condition_rendered_set(wildcards.set_id, CONDITIONS[wildcards.imaging]))
+
+
+def condition_latitude(imaging):
+    """The latitude of a condition's views: the config's, plus the condition's own."""
+    return config["view_latitude_deg"] + CONDITIONS[imaging]["view_latitude_deg"]
+
+
+def condition_cameras(wildcards):
+    """The cameras a condition's own render uses: the configured ones, or those of its latitude."""
+    if not CONDITIONS[wildcards.imaging]["view_latitude_deg"]:
+        return rules.imaging_geometry.output.cameras
+    return CONDITION_CAMERAS.format(latitude=f"{condition_latitude(wildcards.imaging):g}")
+
+
+def mission_condition(wildcards):
+    """The condition as the mission stage takes it, without its relief, which only the renderer reads (a relief
+    changed or added renders the sets again, and the mission sets follow through their input)."""
+    return {key: value for key, value in CONDITIONS[wildcards.imaging].items() if key != "relief"}
 
 
 def mission_seed(wildcards):

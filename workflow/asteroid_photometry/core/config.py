@@ -28,7 +28,7 @@ from pathlib import Path
 import jsonschema
 import yaml
 
-__all__ = ["SCHEMA_PATH", "ConfigError", "load_schema", "validate_config"]
+__all__ = ["SCHEMA_PATH", "ConfigError", "load_schema", "renders_own_sets", "table2_conditions", "validate_config"]
 
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "schemas" / "config.schema.yaml"
 
@@ -205,6 +205,11 @@ def _check_cross_references(config):
         )
 
 
+#: The views' latitude and the phase angle: the ranges of the config keys 'view_latitude_deg' and 'light_angles_deg'.
+MAX_VIEW_LATITUDE_DEG = 80.0
+MAX_PHASE_DEG = 80.0
+
+
 def _check_imaging_conditions(config):
     """Table 2's imaging conditions: unique names, names of existing noise levels and surface maps, what the rules run."""
     if not config.get("reconstruction", {}).get("enabled", True):
@@ -225,11 +230,35 @@ def _check_imaging_conditions(config):
             raise ConfigError(f"{where}: sensor_level {entry['sensor_level']!r} is not the name of a 'noise_levels' entry (names: {level_names})")
         if entry.get("surface_map") is not None and map_names and entry["surface_map"] not in map_names:
             raise ConfigError(f"{where}: surface_map {entry['surface_map']!r} is not the name of a 'surface_maps' entry (names: {map_names})")
-        for key in ("view_latitude_deg", "light_out_of_plane_deg"):
-            if entry.get(key, 0.0) != 0.0:
-                raise ConfigError(f"{where}: {key} {entry[key]} is not run yet; only 0 (the configured imaging geometry and light angles)")
+        # Views and Sun out of the configured geometry (the condition renders its own sets): still in the ranges
+        # of the configured geometry's own keys.
+        latitude = config.get("view_latitude_deg", 0.0) + entry.get("view_latitude_deg", 0.0)
+        if entry.get("view_latitude_deg", 0.0) and not -MAX_VIEW_LATITUDE_DEG <= latitude <= MAX_VIEW_LATITUDE_DEG:
+            raise ConfigError(
+                f"{where}: view_latitude_deg {entry['view_latitude_deg']:g} puts the views at latitude {latitude:g} "
+                f"(with the config key 'view_latitude_deg' {config.get('view_latitude_deg', 0.0):g}); the sum must lie in "
+                f"[-{MAX_VIEW_LATITUDE_DEG:g}, {MAX_VIEW_LATITUDE_DEG:g}]"
+            )
+        tilt = entry.get("light_out_of_plane_deg", 0.0)
+        if tilt:
+            phase = max(math.degrees(math.acos(math.cos(math.radians(angle)) * math.cos(math.radians(tilt)))) for angle in config.get("light_angles_deg", [0.0]))
+            if phase > MAX_PHASE_DEG:
+                raise ConfigError(
+                    f"{where}: light_out_of_plane_deg {tilt:g} with the light angles {config.get('light_angles_deg')} gives a phase angle of "
+                    f"{phase:.1f} deg, more than {MAX_PHASE_DEG:g} (the limit of 'light_angles_deg')"
+                )
         if uses_priors and entry.get("prior_sigma_m", 1.0) == 0.0:
             raise ConfigError(f"{where}: prior_sigma_m 0 gives no navigation priors, but reconstruction.priors asks for a reconstruction with them")
+
+
+#: The imaging-condition keys that change the rendered images, not only how a camera records them.
+CONDITION_RENDER_KEYS = ("view_latitude_deg", "light_out_of_plane_deg", "relief")
+
+
+def renders_own_sets(condition: dict) -> bool:
+    """Whether an ``imaging_conditions`` entry renders its own copy of each set it starts from: views at another
+    latitude, the Sun out of the camera's x-z plane or relief below the shape model's facets (``CONDITION_RENDER_KEYS``)."""
+    return any(condition.get(key) for key in CONDITION_RENDER_KEYS)
 
 
 def table2_conditions(config) -> dict:

@@ -16,6 +16,8 @@ import os
 import shutil
 from dataclasses import dataclass
 
+from asteroid_photometry.core.config import renders_own_sets
+
 #: The pixels of the set the rates were measured on: 36 images of 512 x 512.
 MEASURED_PIXELS = 36 * 512**2
 
@@ -82,10 +84,12 @@ def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estima
     base = sum(1 for s in sets.values() if s.is_base)
     conditions = {"ideal": {}} if conditions is None else conditions
     noisy_conditions = sum(1 for entry in conditions.values() if entry.get("sensor_level"))
+    # A condition of its own views, Sun or relief renders its own copy of every base set (noise-free, as the others).
+    own_renders = base * sum(1 for entry in conditions.values() if renders_own_sets(entry)) if n_prior_settings else 0
     runs = base * len(conditions) * n_prior_settings  # reconstructions of Table 2
     matched = base * len(conditions) if n_prior_settings else 0  # their features, one set for every prior setting
     per_set = {
-        "rendered images": BYTES_PER_PIXEL["render"] * (len(sets) - noisy + n_model_sets) + BYTES_PER_PIXEL["render_noisy"] * noisy,
+        "rendered images": BYTES_PER_PIXEL["render"] * (len(sets) - noisy + n_model_sets + own_renders) + BYTES_PER_PIXEL["render_noisy"] * noisy,
         "observations and fits": BYTES_PER_PIXEL["observations"] * len(sets) + BYTES_PER_PIXEL["fits"] * len(sets) * n_estimators
         + BYTES_PER_PIXEL["observation_geometry"],
         "mission sets": (BYTES_PER_PIXEL["render"] * (len(conditions) - noisy_conditions) + BYTES_PER_PIXEL["render_noisy"] * noisy_conditions) * base
@@ -98,7 +102,7 @@ def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estima
     scale = pixels / MEASURED_PIXELS
     jobs = PEAK_MB_MEASURED if n_prior_settings else {job: mb for job, mb in PEAK_MB_MEASURED.items() if job not in ("refine_cloud", "estimate_cloud", "score_cloud", "match_features", "reconstruct", "register_cloud")}
     peak = {job: BASE_MB + (mb - BASE_MB) * scale for job, mb in jobs.items()}
-    return Footprint(disk, peak, len(sets) + n_model_sets)
+    return Footprint(disk, peak, len(sets) + n_model_sets + own_renders)
 
 
 def machine_memory_mb() -> float | None:

@@ -30,7 +30,7 @@ from asteroid_photometry.estimation.registry import load_observations, require_o
 from asteroid_photometry.evaluation import metrics, truth
 from asteroid_photometry.evaluation.truth import truth_from_arrays
 from asteroid_photometry.reflectance import laws
-from asteroid_photometry.world import cameras, noise, observe, render, surface_maps
+from asteroid_photometry.world import cameras, noise, observe, relief, render, surface_maps
 from asteroid_photometry.world.cameras import load_imaging_geometry
 from asteroid_photometry.world.image_sets import ImageSet
 from asteroid_photometry.world.images import read_rendered_images, write_linear_exr
@@ -52,8 +52,20 @@ def write_imaging_geometry(shape_npz, out_json, n_images, image_size, camera_dis
     files.write_text(out_json, geometry.to_json())
 
 
-def render_set(shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, mitsuba_variant, out_dir, threads=None, surface_map: dict | None = None) -> None:
+def render_set(
+    shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, mitsuba_variant, out_dir, threads=None, surface_map: dict | None = None,
+    light_out_of_plane_deg: float = 0.0, relief_spec: dict | None = None,
+) -> None:
     """Render one set; with ``surface_map`` (a ``surface_maps`` entry) its per-facet truth goes beside the images.
+
+    An imaging condition that renders its own sets (Table 2; its cameras come
+    in ``cameras_json``) adds ``light_out_of_plane_deg``, the Sun tilted out of
+    the camera's x-z plane (``cameras.tilted_light_dir_cam``), and
+    ``relief_spec`` (its ``relief`` entry: ``subdivisions``, ``rms_slope_deg``,
+    ``seed``), the body rendered from ``relief.relief_mesh`` of the shape
+    model, each fine face with its shape-model facet's albedo and k; the
+    truth (facet maps, ``frames.json``) stays on the shape model's facets.
+    ``frames.json`` then records both under ``condition_render``.
 
     The set is rendered into a temporary directory that replaces ``out_dir``
     when complete (``files.partial_directory``).
@@ -68,14 +80,30 @@ def render_set(shape_npz, cameras_json, image_set: ImageSet, samples_per_pixel, 
         spec = {key: value for key, value in surface_map.items() if key in keys}
         albedo, minnaert_k = surface_maps.facet_maps(shape["centroids_m"], spec, surface_map.get("seed", 0), image_set.albedo, image_set.minnaert_k)
         with_maps = True
+    vertices, faces, parent_facet, condition_record = shape["vertices_m"], shape["faces"], None, None
+    if relief_spec is not None or light_out_of_plane_deg != 0.0:
+        condition_record = {"view_latitude_deg": geometry.view_latitude_deg, "light_out_of_plane_deg": float(light_out_of_plane_deg), "relief": None}
+    if relief_spec is not None:
+        vertices, faces, parent_facet = relief.relief_mesh(
+            shape["vertices_m"], shape["faces"], levels=int(relief_spec["subdivisions"]), rms_slope_deg=float(relief_spec["rms_slope_deg"]),
+            seed=int(relief_spec["seed"]),
+        )
+        # As relief_mesh weighs it: by the face's area before the relief, its shape-model facet's over 4**subdivisions.
+        slope = relief.achieved_rms_slope_deg(vertices, faces, parent_facet, shape["normals"], weights=shape["areas_m2"][parent_facet])
+        condition_record["relief"] = {**relief_spec, "achieved_rms_slope_deg": slope, "faces": len(faces)}
+        log.info("relief: %d faces from %d facets, RMS slope %.3f deg against them", len(faces), len(shape["faces"]), slope)
     part = files.partial_directory(out_dir)
     render.render_image_set(
-        shape["vertices_m"], shape["faces"], geometry,
+        vertices, faces, geometry,
         albedo=albedo, minnaert_k=minnaert_k,
-        light_dir_cam=cameras.light_dir_cam(image_set.light_angle_deg),
+        light_dir_cam=cameras.tilted_light_dir_cam(image_set.light_angle_deg, light_out_of_plane_deg),
         spp=samples_per_pixel, out_dir=part, seed=image_set.seed, variant=mitsuba_variant,
         facet_maps_path=part / FACET_MAPS_FILE if with_maps else None,
+        parent_facet=parent_facet,
     )
+    if condition_record is not None:
+        frames = json.loads((part / "frames.json").read_text())
+        files.write_json(part / "frames.json", {**frames, "condition_render": condition_record})
     files.move_into_place(part, out_dir)
 
 

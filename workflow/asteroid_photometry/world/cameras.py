@@ -7,7 +7,8 @@ images. The camera sits at ``view_latitude_deg`` above the body's equator,
 up in the image. The Sun lies ``light_angle_deg`` from the direction towards
 the camera (the phase angle); by default in the camera's x-z plane on the +x
 side, and ``light_dir_cam``'s ``azimuth_deg`` turns it about the optical axis
-out of that plane.
+out of that plane; ``tilted_light_dir_cam`` tilts it out of that plane by a
+given angle, keeping its projection on the plane at the set's light angle.
 
 Conventions are those of :mod:`asteroid_photometry` (OpenCV camera frame,
 metres, continuous pixel coordinates with the image corner at 0).
@@ -122,6 +123,21 @@ def light_dir_cam(light_angle_deg: float, azimuth_deg: float = 0.0) -> np.ndarra
         return np.array([np.sin(angle), 0.0, -np.cos(angle)])
     azimuth = np.radians(azimuth_deg)
     return np.array([np.sin(angle) * np.cos(azimuth), np.sin(angle) * np.sin(azimuth), -np.cos(angle)])
+
+
+def tilted_light_dir_cam(light_angle_deg: float, out_of_plane_deg: float = 0.0) -> np.ndarray:
+    """The Sun ``light_angle_deg`` from ``-z`` in the camera's x-z plane, then tilted ``out_of_plane_deg`` out of it.
+
+    The unit vector ``(sin a cos e, sin e, -cos a cos e)``: its angle out of
+    the x-z plane is ``e`` (towards ``+y``, down in the image, for positive
+    ``e``) and its projection on that plane lies ``a`` from ``-z``, the
+    set's own light angle; the phase angle is ``arccos(cos a cos e)``.
+    ``out_of_plane_deg == 0`` is :func:`light_dir_cam` itself, bit for bit.
+    """
+    if out_of_plane_deg == 0.0:
+        return light_dir_cam(light_angle_deg)
+    angle, tilt = np.radians(light_angle_deg), np.radians(out_of_plane_deg)
+    return np.array([np.sin(angle) * np.cos(tilt), np.sin(tilt), -np.cos(angle) * np.cos(tilt)])
 
 
 def project(points_cam: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:

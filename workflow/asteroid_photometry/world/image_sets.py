@@ -9,6 +9,13 @@ Two sweeps add variants of every base set:
   ``light10_albedo0.7_k0.9_noise-amica12``;
 - ``surface_maps``: the base set rendered with spatially varying albedo and
   k around its values, ``light10_albedo0.7_k0.9_map-field``.
+
+Table 2's imaging conditions start from a base set's render, or its
+surface-map variant's. A condition that changes the images themselves (its
+views out of the equator, the Sun out of the camera's x-z plane, relief below
+the shape model's facets: ``core.config.renders_own_sets``) renders its own copy
+of that set, named ``<set>_imaging-<condition>``
+(:func:`condition_rendered_set`).
 """
 
 from __future__ import annotations
@@ -16,6 +23,8 @@ from __future__ import annotations
 import hashlib
 import itertools
 from dataclasses import dataclass, replace
+
+from asteroid_photometry.core.config import renders_own_sets
 
 
 @dataclass(frozen=True)
@@ -82,3 +91,12 @@ def named_entry(config: dict, key: str, name: str) -> dict:
         if entry["name"] == name:
             return entry
     raise KeyError(f"config key {key!r} has no entry named {name!r}")
+
+
+def condition_rendered_set(set_id: str, condition: dict) -> str:
+    """The id of the rendered set that ``condition`` starts from for base set ``set_id``: the base set,
+    its variant with the condition's surface map, and either with ``_imaging-<name>`` where the condition
+    renders its own (``light10_albedo0.7_k0.9_map-field_imaging-oblique``)."""
+    surface_map = condition.get("surface_map")
+    rendered = set_id + (f"_map-{surface_map}" if surface_map else "")
+    return rendered + (f"_imaging-{condition['name']}" if renders_own_sets(condition) else "")
