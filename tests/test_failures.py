@@ -122,7 +122,7 @@ def test_bad_input_stops_the_stage_before_any_work(small_set, tmp_path):
     mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission", tmp_path / "truth.json")
     write_linear_exr(tmp_path / "mission" / "image_002.exr", np.full((SIZE, SIZE), np.nan))
     with pytest.raises(BadInput, match="image_002.exr"):
-        match_features_stage(tmp_path / "mission", tmp_path / "features", 1)
+        match_features_stage(tmp_path / "mission", tmp_path / "features", 1, RECONSTRUCTION)
     assert not (tmp_path / "features").exists()
     # The world stage before it refuses the same bad image in a rendered set, and writes neither of its outputs.
     write_linear_exr(small_set / "image_002.exr", np.full((SIZE, SIZE), np.nan))
@@ -239,7 +239,7 @@ def four_image_set(tmp_path_factory):
 
 
 RECONSTRUCTION = {
-    "intrinsics": "fixed", "tie_point_sigma_px": 1.0,
+    "intrinsics": "fixed", "tie_point_sigma_px": 1.0, "sift_peak_threshold": 0.00667,
     "min_pose_inliers": 15, "min_pose_inlier_ratio": 0.1, "min_track": 3, "min_observations_per_point": 6, "min_cos_emission": 0.2,
 }
 
@@ -253,7 +253,7 @@ def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_imag
 
     mission_dir = tmp_path / "mission"
     mission_stage(four_image_set, {"name": "ideal", "prior_sigma_m": 0.01}, [], 0, 0, mission_dir, tmp_path / "truth.json")
-    match_features_stage(mission_dir, tmp_path / "features", 1)
+    match_features_stage(mission_dir, tmp_path / "features", 1, RECONSTRUCTION)
     assert json.loads((tmp_path / "features" / "status.json").read_text()) == {"status": "ok"}
     reconstruct_stage(mission_dir, tmp_path / "features", tmp_path / "model", True, RECONSTRUCTION)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
@@ -295,7 +295,7 @@ def test_a_failed_mission_set_is_passed_on_by_the_features_and_both_reconstructi
     for path in small_set.glob("image_*.exr"):
         write_linear_exr(path, np.zeros((SIZE, SIZE)))
     mission_stage(small_set, {"name": "ideal", "prior_sigma_m": 1.0}, [], 0, 0, tmp_path / "mission", tmp_path / "truth.json")
-    match_features_stage(tmp_path / "mission", tmp_path / "features", 1)
+    match_features_stage(tmp_path / "mission", tmp_path / "features", 1, RECONSTRUCTION)
     status = json.loads((tmp_path / "features" / "status.json").read_text())
     assert status["status"] == "failed" and status["reason"].startswith("mission: 3 of 3 images are blank")
     assert [path.name for path in (tmp_path / "features").iterdir()] == ["status.json"]

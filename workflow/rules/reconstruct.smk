@@ -11,6 +11,8 @@ rule match_features:
         mission=rules.mission.output.mission,
     output:
         features=directory("results/features/{imaging}/{set_id}"),
+    params:
+        settings=reconstruction_settings("match_features"),
     # One thread: feature matching on more is not reproducible under load (see reconstruct_images).
     threads: 1
     log:

@@ -5,4 +5,4 @@ from asteroid_photometry.core.logs import setup_logging
 from asteroid_photometry.experiments.table2 import match_features_stage
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
-match_features_stage(snakemake.input.mission, snakemake.output.features, snakemake.threads)  # noqa: F821
+match_features_stage(snakemake.input.mission, snakemake.output.features, snakemake.threads, snakemake.params.settings)  # noqa: F821

@@ -64,7 +64,8 @@ STATUS_FILE = "status.json"
 #: The reconstruction keys (config key ``reconstruction``) each Table 2 stage reads, and no other: the rules pass
 #: each stage only its own (:func:`stage_settings`), so a key read here but not declared fails loudly.
 STAGE_KEYS = {
-    "reconstruct": ("intrinsics", "tie_point_sigma_px", "min_pose_inliers", "min_pose_inlier_ratio", "min_track"),
+    "match_features": ("sift_peak_threshold",),
+    "reconstruct": ("intrinsics", "tie_point_sigma_px", "sift_peak_threshold", "min_pose_inliers", "min_pose_inlier_ratio", "min_track"),
     "register": ("min_track",),
     "cloud": ("min_observations_per_point", "min_cos_emission", "purity_tolerance"),
     "refine": (
@@ -113,7 +114,7 @@ def read_reconstruction(reconstruction_dir) -> reconstruct.SparseReconstruction:
     return reconstruct.SparseReconstruction.read(reconstruction_dir)
 
 
-def match_features_stage(mission_dir, out_dir, threads: int) -> None:
+def match_features_stage(mission_dir, out_dir, threads: int, settings: dict) -> None:
     """The 8-bit images, SIFT features and verified matches of one mission set (``reconstruct.match_images``), in ``out_dir``.
 
     What both reconstructions of a set (priors on and off) start from: no
@@ -124,17 +125,20 @@ def match_features_stage(mission_dir, out_dir, threads: int) -> None:
     """
     out_dir = Path(out_dir)
     try:
-        _match_features(mission_dir, out_dir, threads)
+        _match_features(mission_dir, out_dir, threads, settings)
     except DataFailure as failure:
         part = files.partial_directory(out_dir)
         write_status_json(part / STATUS_FILE, record("match_features", failure))
         files.move_into_place(part, out_dir)
 
 
-def _match_features(mission_dir, out_dir: Path, threads: int) -> None:
+def _match_features(mission_dir, out_dir: Path, threads: int, settings: dict) -> None:
     mission, images = read_mission(mission_dir)  # checked before any work
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
-    reconstruct.match_images(images, Intrinsics(**mission["intrinsics"]), part, num_threads=threads, seed=reconstruct.MATCHING_SEED)
+    reconstruct.match_images(
+        images, Intrinsics(**mission["intrinsics"]), part, features=reconstruct.FeatureOptions(peak_threshold=settings["sift_peak_threshold"]),
+        num_threads=threads, seed=reconstruct.MATCHING_SEED,
+    )
     write_status_json(part / STATUS_FILE)
     files.move_into_place(part, out_dir)
 
@@ -183,6 +187,7 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
             intrinsics_mode=settings["intrinsics"], camera_position_sigma_m=prior_sigma_m if use_priors else 1.0,
             tie_point_sigma_px=settings["tie_point_sigma_px"], seed=seed,
             features=reconstruct.FeatureOptions(
+                peak_threshold=settings["sift_peak_threshold"],
                 min_pose_inliers=settings["min_pose_inliers"], min_pose_inlier_ratio=settings["min_pose_inlier_ratio"],
             ),
         )
