@@ -351,3 +351,15 @@ def test_one_matched_set_serves_both_prior_settings_and_is_only_read(sphere_imag
     assert np.array_equal(whole.points3d()[1], without.points3d()[1])
     with pytest.raises(ValueError, match="matched with other settings"):
         rc.map_matches(tmp_path / "features", tmp_path / "other", features=rc.FeatureOptions(peak_threshold=0.01))
+
+
+def test_verified_pairs_counts_only_pairs_the_verification_accepted(tmp_path):
+    """Images with nothing in common (independent noise): every pair is matched and checked, none accepted, so 0 verified pairs."""
+    rng = np.random.default_rng(3)
+    images = [rng.uniform(0.2, 1.0, (160, 160)) for _ in range(4)]
+    intrinsics = cameras.Intrinsics(width=160, height=160, focal_px=400.0, cx=80.0, cy=80.0)
+    matched = rc.match_images(images, intrinsics, tmp_path / "features", features=rc.FeatureOptions(peak_threshold=0.002))
+    assert min(matched["n_keypoints"].values()) > 50
+    with pycolmap.Database.open(tmp_path / "features" / "database.db") as database:
+        assert database.num_matched_image_pairs() == 6  # the pairs were matched, and looked at
+    assert matched["n_verified_pairs"] == 0
