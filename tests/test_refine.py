@@ -199,3 +199,37 @@ def test_refined_cloud_round_trips_through_its_file(refined, tmp_path):
     np.testing.assert_array_equal(again.refined_light_dir_cam, refined.refined_light_dir_cam)
     assert again.refined_minnaert_k == refined.refined_minnaert_k
     assert again.n_candidates == refined.n_candidates and again.observations.n_points == len(refined.points)
+
+
+@pytest.mark.parametrize(
+    "view_latitude_deg, out_of_plane_deg, expect_axis",
+    [(0.0, 0.0, True), (0.0, 5.0, True), (20.0, 0.0, False), (0.0, 20.0, False), (-20.0, -20.0, False)],
+)
+def test_turn_axis_holds_latitudes_only_in_the_camera_rings_plane(view_latitude_deg, out_of_plane_deg, expect_axis):
+    """The views' and the light's angles out of the ring's plane come back from the cameras alone; the spin axis only when both are small."""
+    from asteroid_photometry.world import cameras
+
+    poses = cameras.body_to_camera_poses(24, 5000.0, view_latitude_deg)
+    light = cameras.tilted_light_dir_cam(10.0, out_of_plane_deg)
+    # Any similarity frame: the reconstruction's is turned, shifted and scaled against the body's.
+    turn = refine._turn(np.eye(3), np.array([0.6, 0.0, 0.8]), np.full(3, 0.7))
+    frame = np.eye(4)
+    frame[:3, :3], frame[:3, 3] = turn, (30.0, -20.0, 5.0)
+    scale = 0.01
+    moved = {}
+    for i, pose in enumerate(poses):
+        body_from_frame = np.linalg.inv(frame)
+        m = pose @ body_from_frame
+        m[:3, 3] *= scale
+        moved[i] = m
+    centre = scale * (frame[:3, :3] @ np.zeros(3) + frame[:3, 3])
+    axis, view_deg, light_deg = refine.turn_axis(moved, centre, light)
+    assert view_deg == pytest.approx(abs(view_latitude_deg), abs=0.01)
+    # The light's angle to the equator, in the body frame (equal to the tilt out of the camera's x-z plane when the views are equatorial).
+    light_body = poses[0, :3, :3].T @ light
+    assert light_deg == pytest.approx(np.degrees(np.arcsin(abs(light_body[2]))), abs=0.01)
+    if view_latitude_deg == 0.0:
+        assert light_deg == pytest.approx(abs(out_of_plane_deg), abs=0.01)
+    assert (axis is not None) == expect_axis
+    if expect_axis:
+        assert abs(abs(axis @ turn[:, 2]) - 1.0) < 1e-9  # the body's z, seen in the reconstruction's frame

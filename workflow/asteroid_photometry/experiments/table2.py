@@ -290,12 +290,17 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
     start = run_estimator(obs, "koizumi_lm")  # the refinement starts from the paper's estimate
     fitted = np.isfinite(start.albedo) & np.isfinite(start.minnaert_k)
     albedo, minnaert_k = float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
+    axis, view_deg, light_deg = refine.turn_axis(poses, oriented.points.mean(axis=0), start.light_dir_cam)
+    log.info(
+        "views %.1f deg and light %.1f deg out of the camera ring's plane: normals %s", view_deg, light_deg,
+        "turn about the spin axis" if axis is not None else f"tilt freely (above {refine.IN_PLANE_LIMIT_DEG:g} deg)",
+    )
     pure = refine.refine_by_pure_samples(
         surface, poses, recon.intrinsics(), images, start.light_dir_cam, albedo, minnaert_k,
         n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"], offset_steps=settings["refine_offset_steps"],
         purity_tolerance=purity_test, max_residual=settings["refine_max_residual"],
         min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
-        axis=refine.spin_axis(list(recon.camera_centres().values())),
+        axis=axis,
     )
     if pure.observations.n_obs < 10 * settings["min_observations_per_point"] or not np.all(np.isfinite(pure.refined_light_dir_cam)):
         raise DataFailure(

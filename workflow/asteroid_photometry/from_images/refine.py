@@ -34,7 +34,11 @@ Sun in its plane, a point's brightness fixes its normal's longitude, while
 a latitude error only scales the brightness by ``cos(lat)^(2k - 1)``, which
 the point's albedo absorbs. Left free, the latitude wanders with whatever
 the light's elevation is (flattened on one run, -0.008 in the mean albedo);
-held at the surface's, it costs only albedo scatter.
+held at the surface's, it costs only albedo scatter. That holds only in the
+plane: with the views or the Sun out of the ring's plane (by more than
+``IN_PLANE_LIMIT_DEG``, measured by :func:`turn_axis` from the cameras and
+the starting light), a latitude error changes the brightness differently in
+each view, the data constrain it, and the normals tilt about both axes.
 
 Two parts of the light behave differently. Its azimuth (about the spin
 axis) the refinement keeps from where it started: a common turn of the
@@ -86,6 +90,36 @@ def spin_axis(camera_centres) -> np.ndarray:
     centres = np.asarray(camera_centres, dtype=float)
     _, _, vt = np.linalg.svd(centres - centres.mean(axis=0))
     return vt[2]
+
+
+#: Above this angle (deg) of the views or of the light out of the plane of the camera ring, a normal's latitude
+#: changes its brightness differently in each view (no longer a scale its albedo absorbs): the refinement then
+#: tilts the normals about both axes (:func:`turn_axis`). In-plane sets sit near 0 (their cloud estimates' light
+#: is at most 4 deg out of the plane, on the paper's sets and the tuning grid); the `oblique` condition at 20.
+IN_PLANE_LIMIT_DEG = 10.0
+
+
+def out_of_plane_deg(body_to_camera: dict, centre, light_dir_cam) -> tuple[float, float]:
+    """How far the views and the light leave the plane of the camera ring (deg): the median over the images of
+    the angle between the ring's plane (normal :func:`spin_axis`) and the view from each camera to ``centre``,
+    and of the light (``light_dir_cam`` in each camera's frame) taken to the reconstruction frame."""
+    rotations = np.array([pose[:3, :3] for pose in body_to_camera.values()])
+    centres = np.array([-pose[:3, :3].T @ pose[:3, 3] for pose in body_to_camera.values()])
+    axis = spin_axis(centres)
+    views = np.asarray(centre, dtype=float) - centres
+    views /= np.linalg.norm(views, axis=1, keepdims=True)
+    light = np.einsum("nji,j->ni", rotations, np.asarray(light_dir_cam, dtype=float) / np.linalg.norm(light_dir_cam))
+    view_deg, light_deg = (float(np.degrees(np.median(np.arcsin(np.clip(np.abs(v @ axis), 0.0, 1.0))))) for v in (views, light))
+    return view_deg, light_deg
+
+
+def turn_axis(body_to_camera: dict, centre, light_dir_cam, limit_deg: float = IN_PLANE_LIMIT_DEG):
+    """The axis the refinement turns normals about: the spin axis when the views and the light lie in the camera
+    ring's plane (within ``limit_deg``), else None (normals tilt freely); also returns the two angles (deg)."""
+    view_deg, light_deg = out_of_plane_deg(body_to_camera, centre, light_dir_cam)
+    in_plane = max(view_deg, light_deg) <= limit_deg
+    centres = [-pose[:3, :3].T @ pose[:3, 3] for pose in body_to_camera.values()]
+    return (spin_axis(centres) if in_plane else None), view_deg, light_deg
 
 
 def _model(normals_obs, light_b, view_b, albedo_obs, k_obs):
