@@ -149,3 +149,52 @@ def estimate_gains(
     gains_after = np.exp(log_gain - log_scale)
     std_after = gains_after * np.sqrt(log_variance_after)
     return GainEstimate(gains_after, std_after, float(np.exp(log_scale)), n_rows, float(reduced_chi2), gauge)
+
+
+#: The alternation of :func:`fit_pooled_k_with_gains` stops when the light moves less than this (deg) or after
+#: ``MAX_GAIN_ROUNDS`` rounds.
+GAIN_LIGHT_TOLERANCE_DEG = 0.005
+MAX_GAIN_ROUNDS = 10
+
+
+def fit_pooled_k_with_gains(
+    observations: Observations, image_index, light_init, minnaert_k_init: float, *, variance=None, n_images: int | None = None, min_observations: int = 2,
+):
+    """``fit_pooled_k`` with a gain per image floated: ``(fit, gains, rounds)``, the fit on the brightness with the gains divided out.
+
+    Alternates the photometric fit (one light, an albedo per point, one k)
+    with :func:`estimate_gains` against its predictions, with the
+    geometric-mean gauge (the albedo keeps the overall scale), until the light
+    moves less than ``GAIN_LIGHT_TOLERANCE_DEG`` (at most ``MAX_GAIN_ROUNDS``
+    rounds). ``gains`` (n_images,) is 1 for an image without usable rows.
+    ``variance``: each row's noise variance (weights of the gain fit).
+    """
+    from dataclasses import replace
+
+    from asteroid_photometry.estimation.core import angle_between_deg
+    from asteroid_photometry.estimation.koizumi import fit_pooled_k
+    from asteroid_photometry.reflectance.laws import minnaert_brightness
+
+    image_index = np.asarray(image_index)
+    n_images = int(image_index.max()) + 1 if n_images is None else int(n_images)
+    gains = np.ones(n_images)
+    fit = fit_pooled_k(observations, light_init, minnaert_k_init, min_observations=min_observations)
+    rounds = 0
+    for rounds in range(1, MAX_GAIN_ROUNDS + 1):
+        p = observations.point_index
+        cos_i = np.clip(observations.normal_cam @ fit.light_dir_cam, 0.0, None)
+        cos_o = np.clip(np.einsum("ij,ij->i", observations.normal_cam, observations.view_cam), 1e-6, None)
+        prediction = minnaert_brightness(fit.albedo[p], fit.minnaert_k[p], cos_i, cos_o)
+        rows = np.isfinite(prediction) & (prediction > 0)
+        used = replace(
+            observations, point_index=p[rows], normal_cam=observations.normal_cam[rows], view_cam=observations.view_cam[rows],
+            brightness=observations.brightness[rows],
+        )
+        estimate = estimate_gains(used, image_index[rows], prediction[rows], None if variance is None else np.asarray(variance)[rows], n_images=n_images)
+        gains = np.where(np.isfinite(estimate.gains), estimate.gains, 1.0)
+        corrected = replace(observations, brightness=observations.brightness / gains[image_index])
+        previous = fit.light_dir_cam
+        fit = fit_pooled_k(corrected, previous, float(np.nanmedian(fit.minnaert_k)), min_observations=min_observations)
+        if angle_between_deg(fit.light_dir_cam, previous) < GAIN_LIGHT_TOLERANCE_DEG:
+            break
+    return fit, gains, rounds
