@@ -109,21 +109,3 @@ def test_images_without_rows_get_nan_and_bad_input_is_refused():
         estimate_gains(observations, image_index, prediction, n_images=3)
     with pytest.raises(ValueError, match="variance"):
         estimate_gains(observations, image_index, prediction, np.zeros_like(variance))
-
-
-def test_pooled_fit_with_gains_floated_recovers_the_gains_and_the_light():
-    """The refinement's light step with each image's gain floated: the gains come back and the light is closer than without them."""
-    from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k
-    from asteroid_photometry.estimation.gains import fit_pooled_k_with_gains
-
-    observations, image_index, _, variance, gains = gained_observations(seed=4, n_images=12, gain_sigma=0.03, n_points=600)
-    start = LIGHT + np.array([0.02, 0.01, 0.0])
-    fit, estimated, rounds = fit_pooled_k_with_gains(observations, image_index, start, 0.8, variance=variance, n_images=12, min_observations=6)
-    truth = gains / math.exp(np.mean(np.log(gains)))
-    assert 1 <= rounds <= 10
-    assert math.exp(np.mean(np.log(estimated))) == pytest.approx(1.0, abs=1e-9)
-    assert np.sqrt(np.mean((estimated - truth) ** 2)) < 0.1 * np.std(truth)
-    ignored = fit_pooled_k(observations, start, 0.8, min_observations=6)
-    error, error_ignored = angle_between_deg(fit.light_dir_cam, LIGHT), angle_between_deg(ignored.light_dir_cam, LIGHT)
-    assert error < 0.5 * error_ignored, (error, error_ignored)
-    assert float(np.nanmedian(fit.minnaert_k)) == pytest.approx(K, abs=0.01)

@@ -55,14 +55,13 @@ off, and step 4, with one k, 0.07 to 0.40 deg.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2 as chi2_law, median_abs_deviation
+from scipy.stats import chi2 as chi2_law
 
 from asteroid_photometry.core import files
 from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, Observations
-from asteroid_photometry.estimation.gains import fit_pooled_k_with_gains
 from asteroid_photometry.from_images import cloud as cloud_lib
 from asteroid_photometry.reflectance.laws import minnaert_brightness
 from asteroid_photometry.world.cameras import Intrinsics
@@ -251,9 +250,6 @@ class PureSampleCloud:
     light_dir_cam: np.ndarray  # the light the normals were fitted under
     refined_light_dir_cam: np.ndarray  # the light fitted to the pure samples with one k for the body (estimate.fit_pooled_k)
     refined_minnaert_k: float  # that k
-    # (n_images,) each image's gain floated with that fit (images with a sensor model; 1 for renders); the
-    # observations' brightness has them divided out.
-    gains: np.ndarray
 
     def save(self, path) -> None:
         """One .npz with the arrays."""
@@ -262,7 +258,7 @@ class PureSampleCloud:
             path, points=self.points, normals=self.normals, surface_normals=self.surface_normals, point_index=obs.point_index,
             normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness, image_index=self.image_index,
             offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, light_dir_cam=self.light_dir_cam,
-            refined_light_dir_cam=self.refined_light_dir_cam, refined_minnaert_k=self.refined_minnaert_k, gains=self.gains,
+            refined_light_dir_cam=self.refined_light_dir_cam, refined_minnaert_k=self.refined_minnaert_k,
         )
 
     @classmethod
@@ -274,7 +270,7 @@ class PureSampleCloud:
             )
             return cls(
                 data["points"], data["normals"], data["surface_normals"], observations, data["image_index"], data["offset_px"], data["residual"],
-                int(data["n_candidates"]), data["light_dir_cam"], data["refined_light_dir_cam"], float(data["refined_minnaert_k"]), data["gains"],
+                int(data["n_candidates"]), data["light_dir_cam"], data["refined_light_dir_cam"], float(data["refined_minnaert_k"]),
             )
 
 
@@ -413,25 +409,14 @@ def refine_by_pure_samples(
     observations = Observations(
         point_index=point_index[keep], normal_cam=normal_cam[keep], view_cam=view_cam[keep], brightness=brightness[keep], n_points=len(points),
     )
-    # The light again, from the pure samples, with one k for the body (step 4, module docstring); with a
-    # sensor (a camera's images, not renders) each image's gain is floated as well.
-    image_index = image_index[keep]
-    refined_light, refined_k, gains = np.full(3, np.nan), np.nan, np.ones(max(poses) + 1)
+    # The light again, from the pure samples, with one k for the body (step 4, module docstring).
+    refined_light, refined_k = np.full(3, np.nan), np.nan
     if observations.n_obs >= 3 + np.count_nonzero(observations.observations_per_point):  # an albedo per point, one k, the light
-        if callable(purity_tolerance):
-            pooled, gains, rounds = fit_pooled_k_with_gains(
-                observations, image_index, light_dir_cam, minnaert_k, variance=purity_tolerance.sample_variance(observations.brightness),
-                n_images=len(gains), min_observations=min_observations,
-            )
-            observations = replace(observations, brightness=observations.brightness / gains[image_index])
-            log.info("gains floated (%d rounds): robust spread %.4f, range %.4f to %.4f", rounds, median_abs_deviation(gains, scale="normal"), gains.min(), gains.max())
-        else:
-            pooled = fit_pooled_k(observations, light_dir_cam, minnaert_k, min_observations=min_observations)
+        pooled = fit_pooled_k(observations, light_dir_cam, minnaert_k, min_observations=min_observations)
         refined_light, refined_k = pooled.light_dir_cam, float(np.nanmedian(pooled.minnaert_k))
         log.info("light from the pure samples with one k (%.4f): %.3f deg from the light the normals were fitted under", refined_k, float(angle_between_deg(refined_light, light_dir_cam)))
     return PureSampleCloud(
-        points, normals, surface_normals, observations, image_index, best_offset[accepted], best_residual[accepted], len(candidates.points),
-        np.asarray(light_dir_cam, dtype=float), refined_light, refined_k, gains,
+        points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points),
+        np.asarray(light_dir_cam, dtype=float), refined_light, refined_k,
     )
-
 
