@@ -64,7 +64,7 @@ from asteroid_photometry.core import files
 from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, Observations
 from asteroid_photometry.from_images import cloud as cloud_lib
 from asteroid_photometry.reflectance.laws import minnaert_brightness
-from asteroid_photometry.world.cameras import Intrinsics
+from asteroid_photometry.world.cameras import camera_centres_body, Intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -99,27 +99,24 @@ def spin_axis(camera_centres) -> np.ndarray:
 IN_PLANE_LIMIT_DEG = 10.0
 
 
-def out_of_plane_deg(body_to_camera: dict, centre, light_dir_cam) -> tuple[float, float]:
-    """How far the views and the light leave the plane of the camera ring (deg): the median over the images of
-    the angle between the ring's plane (normal :func:`spin_axis`) and the view from each camera to ``centre``,
-    and of the light (``light_dir_cam`` in each camera's frame) taken to the reconstruction frame."""
-    rotations = np.array([pose[:3, :3] for pose in body_to_camera.values()])
-    centres = np.array([-pose[:3, :3].T @ pose[:3, 3] for pose in body_to_camera.values()])
+def turn_axis(body_to_camera: dict, centre, light_dir_cam, limit_deg: float = IN_PLANE_LIMIT_DEG):
+    """The axis the refinement turns normals about, and how far the views and the light leave the camera ring's plane.
+
+    Returns ``(axis, view_deg, light_deg)``: the angles are medians over the
+    images of the angle between the ring's plane (normal :func:`spin_axis`)
+    and the view from each camera to ``centre``, and the light
+    (``light_dir_cam`` in each camera's frame) taken to the reconstruction
+    frame. ``axis`` is the spin axis when both are within ``limit_deg``, else
+    None (normals tilt freely).
+    """
+    poses = np.array(list(body_to_camera.values()))
+    centres = camera_centres_body(poses)
     axis = spin_axis(centres)
     views = np.asarray(centre, dtype=float) - centres
     views /= np.linalg.norm(views, axis=1, keepdims=True)
-    light = np.einsum("nji,j->ni", rotations, np.asarray(light_dir_cam, dtype=float) / np.linalg.norm(light_dir_cam))
+    light = np.einsum("nji,j->ni", poses[:, :3, :3], np.asarray(light_dir_cam, dtype=float) / np.linalg.norm(light_dir_cam))
     view_deg, light_deg = (float(np.degrees(np.median(np.arcsin(np.clip(np.abs(v @ axis), 0.0, 1.0))))) for v in (views, light))
-    return view_deg, light_deg
-
-
-def turn_axis(body_to_camera: dict, centre, light_dir_cam, limit_deg: float = IN_PLANE_LIMIT_DEG):
-    """The axis the refinement turns normals about: the spin axis when the views and the light lie in the camera
-    ring's plane (within ``limit_deg``), else None (normals tilt freely); also returns the two angles (deg)."""
-    view_deg, light_deg = out_of_plane_deg(body_to_camera, centre, light_dir_cam)
-    in_plane = max(view_deg, light_deg) <= limit_deg
-    centres = [-pose[:3, :3].T @ pose[:3, 3] for pose in body_to_camera.values()]
-    return (spin_axis(centres) if in_plane else None), view_deg, light_deg
+    return (axis if max(view_deg, light_deg) <= limit_deg else None), view_deg, light_deg
 
 
 def _model(normals_obs, light_b, view_b, albedo_obs, k_obs):
