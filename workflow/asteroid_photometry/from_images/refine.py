@@ -58,6 +58,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 from scipy.stats import chi2 as chi2_law
 
 from asteroid_photometry.core import files
@@ -126,6 +127,18 @@ def _model(normals_obs, light_b, view_b, albedo_obs, k_obs):
     return minnaert_brightness(albedo_obs, k_obs, cos_i, cos_o), cos_i, cos_o
 
 
+#: A point of :func:`refine_points` is converged, and no longer iterated, when its LM damping has grown past
+#: FROZEN_DAMPING (steps of about 1e-3 of a Gauss-Newton step, after some ten failed ones) or its last step
+#: lowered its cost by less than CONVERGED_DECREASE of it.
+FROZEN_DAMPING = 1e3
+CONVERGED_DECREASE = 1e-10
+
+
+def _sum_matrix(point_index, n_points: int):
+    """Sparse (points x samples) matrix of ones where a sample is the point's: its product with a sample array sums it per point."""
+    return sparse.csr_matrix((np.ones(len(point_index)), (point_index, np.arange(len(point_index)))), shape=(n_points, len(point_index)))
+
+
 def refine_points(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam, *, n_iterations=15, min_observations=8, max_tilt_deg=45.0, normal_prior_deg=10.0, fit_albedo_k=True, noise_var=None, axis=None):
     """Per-point LM on (normal, albedo, k) with the light fixed; returns new arrays and the refined mask.
 
@@ -136,86 +149,102 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
     estimate: brightness errors from mispositioned samples otherwise tilt
     normals freely); a normal may turn at most ``max_tilt_deg``. With an
     ``axis`` a normal only turns about it (its latitude about the axis stays).
+
+    Every point's system is its own: the work is done on the points with
+    enough samples only, and every sum over each point's samples is one
+    sparse product.
     """
     n_points = len(normals)
     counts = np.bincount(point_index, minlength=n_points)
-    active = (counts >= min_observations) & np.isfinite(albedo) & np.isfinite(minnaert_k)
-    use = active[point_index]
-    p, rot, brightness = point_index[use], rotations[use], brightness[use]
+    active = (counts >= max(min_observations, 1)) & np.isfinite(albedo) & np.isfinite(minnaert_k)
+    out_normals, out_albedo, out_k = normals.copy(), albedo.copy(), minnaert_k.copy()
+    if not active.any():
+        return out_normals, out_albedo, out_k, active
+    # The active points' samples, grouped by point; p numbers the active points 0..m-1.
+    rows = np.flatnonzero(active[point_index])
+    rows = rows[np.argsort(point_index[rows], kind="stable")]
+    p = (np.cumsum(active) - 1)[point_index[rows]]
+    per_point = _sum_matrix(p, int(active.sum()))
+    rot, brightness = rotations[rows], brightness[rows]
     light_b = np.einsum("nji,j->ni", rot, light_dir_cam)  # R^T l
-    view_b = np.einsum("nji,nj->ni", rot, view_cam[use])  # R^T v
-    start = normals.copy()
-    normals, albedo, minnaert_k = normals.copy(), albedo.copy(), minnaert_k.copy()
-    original_albedo, original_k = albedo.copy(), minnaert_k.copy()
-    albedo[~active], minnaert_k[~active] = 1.0, 1.0  # placeholders, restored below
-    damping = np.full(n_points, 1e-3)
+    view_b = np.einsum("nji,nj->ni", rot, view_cam[rows])  # R^T v
+    start = normals[active]
+    normals, albedo, minnaert_k = start.copy(), albedo[active].copy(), minnaert_k[active].copy()
+    # The parameters fitted: the normal's two tangent turns (one about an axis), then albedo and k.
+    free = [0] + ([] if axis is not None else [1]) + ([2, 3] if fit_albedo_k else [])
+    pairs = [(a, b) for a in range(len(free)) for b in range(a, len(free))]  # J^T J's upper triangle
 
-    f0, _, _ = _model(normals[p], light_b, view_b, albedo[p], minnaert_k[p])
+    def evaluate(n, a, k, st):
+        f, cos_i, cos_o = _model(n[p], light_b, view_b, a[p], k[p])
+        cost = per_point @ (f - brightness) ** 2 + prior_weight * np.sum((n - st) ** 2, axis=1)
+        return cost, f, cos_i, cos_o
+
     if noise_var is None:
+        f0, _, _ = _model(normals[p], light_b, view_b, albedo[p], minnaert_k[p])
         noise_var = np.median((f0 - brightness) ** 2) / 0.455  # robust variance of the residuals
     prior_weight = noise_var / np.radians(normal_prior_deg) ** 2
 
-    def costs(n, a, k):
-        f, _, _ = _model(n[p], light_b, view_b, a[p], k[p])
-        tilt2 = np.sum((n - start) ** 2, axis=1)
-        return np.bincount(p, weights=(f - brightness) ** 2, minlength=n_points) + prior_weight * tilt2
-
-    cost = costs(normals, albedo, minnaert_k)
+    # The points still iterating (ids into the arrays above) and their state; the working set drops the
+    # converged points (FROZEN_DAMPING, CONVERGED_DECREASE) when they are a fifth of it.
+    ids = np.arange(len(start))
+    n_, a_, k_, st_, damping = normals, albedo, minnaert_k, start, np.full(len(start), 1e-3)
+    cost, f, cos_i, cos_o = evaluate(n_, a_, k_, st_)
     for _ in range(n_iterations):
         if axis is None:
-            e1, e2 = _tangent_basis(normals)
+            e1, e2 = _tangent_basis(n_)
         else:  # the derivative of a turn about the axis; no second direction
-            e1, e2 = np.cross(axis, normals), np.zeros_like(normals)
-        f, cos_i, cos_o = _model(normals[p], light_b, view_b, albedo[p], minnaert_k[p])
-        k = minnaert_k[p]
+            e1, e2 = np.cross(axis, n_), np.zeros_like(n_)
+        k = k_[p]
         d_normal = f[:, None] * (k[:, None] / cos_i[:, None] * light_b + (k[:, None] - 1.0) / cos_o[:, None] * view_b)
-        jac = np.stack([
-            np.einsum("ij,ij->i", d_normal, e1[p]),
-            np.einsum("ij,ij->i", d_normal, e2[p]),
-            f / albedo[p],
-            f * (np.log(cos_i) + np.log(cos_o)),
-        ], axis=1)
+        columns = {
+            0: lambda: np.einsum("ij,ij->i", d_normal, e1[p]),
+            1: lambda: np.einsum("ij,ij->i", d_normal, e2[p]),
+            2: lambda: f / a_[p],
+            3: lambda: f * (np.log(cos_i) + np.log(cos_o)),
+        }
+        jac = [columns[c]() for c in free]
         residual = f - brightness
-        jtj = np.zeros((n_points, 4, 4))
-        jtr = np.zeros((n_points, 4))
-        for a in range(4):
-            jtr[:, a] = np.bincount(p, weights=jac[:, a] * residual, minlength=n_points)
-            for b in range(a, 4):
-                jtj[:, a, b] = jtj[:, b, a] = np.bincount(p, weights=jac[:, a] * jac[:, b], minlength=n_points)
+        sums = per_point @ np.column_stack([jac[a] * jac[b] for a, b in pairs] + [column * residual for column in jac])
+        jtj = np.empty((len(ids), len(free), len(free)))
+        for column, (a, b) in enumerate(pairs):
+            jtj[:, a, b] = jtj[:, b, a] = sums[:, column]
+        jtr = sums[:, len(pairs):]
         # The prior on the normal, linearised in the tangent plane of the current normal.
-        offset = normals - start
-        jtr[:, 0] += prior_weight * np.einsum("ij,ij->i", offset, e1)
-        jtr[:, 1] += prior_weight * np.einsum("ij,ij->i", offset, e2)
-        jtj[:, 0, 0] += prior_weight * np.einsum("ij,ij->i", e1, e1)
-        jtj[:, 1, 1] += prior_weight * np.einsum("ij,ij->i", e2, e2)
+        offset = n_ - st_
+        for column, direction in ((0, e1), (1, e2)):
+            if column in free:
+                jtr[:, free.index(column)] += prior_weight * np.einsum("ij,ij->i", offset, direction)
+                jtj[:, free.index(column), free.index(column)] += prior_weight * np.einsum("ij,ij->i", direction, direction)
         diag = np.einsum("nii->ni", jtj)
-        system = jtj + (damping[:, None] * np.maximum(diag, 1e-12))[:, :, None] * np.eye(4)
-        if axis is not None:  # one angle: the second normal row is frozen
-            system[:, 1, :] = system[:, :, 1] = 0.0
-            system[:, 1, 1] = 1.0
-            jtr[:, 1] = 0.0
-        if not fit_albedo_k:  # normals only: the albedo and k rows are frozen
-            system[:, 2:, :] = 0.0
-            system[:, :, 2:] = 0.0
-            system[:, 2, 2] = system[:, 3, 3] = 1.0
-            jtr[:, 2:] = 0.0
-        # Each point's 4x4 system on its own, the points with samples only (every 4x4 solve is independent of the others).
-        step = np.zeros((n_points, 4))
-        step[active] = -np.linalg.solve(system[active], jtr[active][:, :, None])[:, :, 0]
+        system = jtj + (damping[:, None] * np.maximum(diag, 1e-12))[:, :, None] * np.eye(len(free))
+        step = np.zeros((len(ids), 4))
+        step[:, free] = -np.linalg.solve(system, jtr[:, :, None])[:, :, 0]
         if axis is None:
-            trial_normals = normals + step[:, [0]] * e1 + step[:, [1]] * e2
+            trial_normals = n_ + step[:, [0]] * e1 + step[:, [1]] * e2
             trial_normals /= np.linalg.norm(trial_normals, axis=1, keepdims=True)
         else:
-            trial_normals = _turn(normals, axis, step[:, 0])
-        trial_albedo = np.maximum(albedo + step[:, 2], 1e-4)
-        trial_k = np.clip(minnaert_k + step[:, 3], 0.05, 2.0)
-        tilt_ok = np.einsum("ij,ij->i", trial_normals, start) >= np.cos(np.radians(max_tilt_deg))
-        trial_cost = costs(trial_normals, trial_albedo, trial_k)
-        better = active & tilt_ok & (trial_cost < cost)
-        normals[better], albedo[better], minnaert_k[better], cost[better] = trial_normals[better], trial_albedo[better], trial_k[better], trial_cost[better]
+            trial_normals = _turn(n_, axis, step[:, 0])
+        trial_albedo = np.maximum(a_ + step[:, 2], 1e-4)
+        trial_k = np.clip(k_ + step[:, 3], 0.05, 2.0)
+        tilt_ok = np.einsum("ij,ij->i", trial_normals, st_) >= np.cos(np.radians(max_tilt_deg))
+        trial_cost, trial_f, trial_cos_i, trial_cos_o = evaluate(trial_normals, trial_albedo, trial_k, st_)
+        better = tilt_ok & (trial_cost < cost)
+        settled = better & (cost - trial_cost <= CONVERGED_DECREASE * cost)
+        n_[better], a_[better], k_[better], cost[better] = trial_normals[better], trial_albedo[better], trial_k[better], trial_cost[better]
+        moved = better[p]
+        f, cos_i, cos_o = np.where(moved, trial_f, f), np.where(moved, trial_cos_i, cos_i), np.where(moved, trial_cos_o, cos_o)
         damping = np.where(better, damping / 3.0, damping * 4.0)
-    albedo[~active], minnaert_k[~active] = original_albedo[~active], original_k[~active]
-    return normals, albedo, minnaert_k, active
+        going = (damping < FROZEN_DAMPING) & ~settled
+        if np.count_nonzero(going) < 0.8 * len(ids):  # drop the converged points (their state is written back first)
+            normals[ids], albedo[ids], minnaert_k[ids] = n_, a_, k_
+            ids, kept = ids[going], going[p]
+            n_, a_, k_, st_, damping, cost = n_[going], a_[going], k_[going], st_[going], damping[going], cost[going]
+            p, light_b, view_b, brightness = (np.cumsum(going) - 1)[p[kept]], light_b[kept], view_b[kept], brightness[kept]
+            f, cos_i, cos_o = f[kept], cos_i[kept], cos_o[kept]
+            per_point = _sum_matrix(p, len(ids))
+    normals[ids], albedo[ids], minnaert_k[ids] = n_, a_, k_
+    out_normals[active], out_albedo[active], out_k[active] = normals, albedo, minnaert_k
+    return out_normals, out_albedo, out_k, active
 
 
 def relative_residuals(point_index, rotations, view_cam, brightness, normals, albedo, minnaert_k, light_dir_cam) -> np.ndarray:
