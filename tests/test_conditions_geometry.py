@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from asteroid_photometry.core.config import renders_own_sets
+from asteroid_photometry.core.config import condition_sets, renders_own_sets, ConfigError
 from asteroid_photometry.core.footprint import estimate_footprint
 from asteroid_photometry.evaluation.truth import rendered_truth, true_light, true_poses, truth_for_facets
 from asteroid_photometry.experiments.table1 import render_set, write_imaging_geometry
@@ -108,6 +108,19 @@ def test_the_footprint_counts_a_conditions_own_renders():
     oblique = estimate_footprint(config, sets, 1, 1, conditions={**ideal, "oblique": {"name": "oblique", "view_latitude_deg": 20.0}})
     assert oblique.n_sets == plain.n_sets + 2
     assert oblique.disk_bytes["rendered images"] == pytest.approx(2 * plain.disk_bytes["rendered images"])
+    # On one of the two base sets (its key sets): one render of its own, one mission set more.
+    one = estimate_footprint(config, sets, 1, 1, conditions={**ideal, "oblique": {"name": "oblique", "view_latitude_deg": 20.0}},
+                             condition_sets={"ideal": ["light0_albedo0.6_k0.8", "light10_albedo0.6_k0.8"], "oblique": ["light10_albedo0.6_k0.8"]})
+    assert one.n_sets == plain.n_sets + 1
+    assert one.disk_bytes["mission sets"] == pytest.approx(1.5 * plain.disk_bytes["mission sets"])
+
+
+def test_a_condition_runs_on_the_base_sets_it_names_in_their_order_and_refuses_others():
+    base = ["light0_albedo0.5_k0.8", "light0_albedo0.7_k0.8", "light10_albedo0.5_k0.8"]
+    conditions = {"ideal": {"name": "ideal", "sets": None}, "oblique": {"name": "oblique", "sets": ["light10_albedo0.5_k0.8", "light0_albedo0.5_k0.8"]}}
+    assert condition_sets(conditions, base) == {"ideal": base, "oblique": ["light0_albedo0.5_k0.8", "light10_albedo0.5_k0.8"]}
+    with pytest.raises(ConfigError, match=r"config key 'imaging_conditions' \(oblique\): sets \['light10_albedo0.6_k0.8'\] are not base sets"):
+        condition_sets({"oblique": {"name": "oblique", "sets": ["light10_albedo0.6_k0.8"]}}, base)
 
 
 # --- the renders ------------------------------------------------------------------------------

@@ -230,6 +230,13 @@ def test_a_wrong_condition_geometry_or_relief_is_rejected_naming_the_key(test_co
     assert expected in _error(_with_condition(test_config, **keys))
 
 
+def test_a_conditions_sets_are_a_non_empty_list_of_set_ids_or_null(test_config):
+    assert validate_config(_with_condition(test_config))["imaging_conditions"][0]["sets"] is None
+    assert validate_config(_with_condition(test_config, sets=["light0_albedo0.5_k0.8"]))["imaging_conditions"][0]["sets"] == ["light0_albedo0.5_k0.8"]
+    assert "config key 'imaging_conditions[0].sets': [] should be non-empty" in _error(_with_condition(test_config, sets=[]))
+    assert "config key 'imaging_conditions[0].sets': 'light0' is not of type 'array', 'null'" in _error(_with_condition(test_config, sets="light0"))
+
+
 def test_the_views_latitude_is_the_configs_plus_the_conditions_and_must_stay_in_range(test_config):
     test_config["view_latitude_deg"] = 70.0
     message = _error(_with_condition(test_config, view_latitude_deg=20))

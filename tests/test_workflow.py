@@ -35,13 +35,14 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["fit"] == (16 + 16 + 48) * 3
     # One imaging geometry: its candidate observations need no light (each set selects with its estimated light).
     assert jobs["observation_geometry"] == 1
-    assert jobs["match_features"] == 2 * 16  # two conditions: one set of features and matches for both prior settings
-    assert jobs["reconstruct"] == 2 * 16 * 2  # two conditions, with and without priors
-    assert jobs["refine_cloud"] == 2 * 16 * 2
-    # Table 2 under two imaging conditions (ideal, amica): a mission set per condition and base set.
-    assert jobs["mission"] == 2 * 16
+    # Table 2 under four imaging conditions: ideal and amica on the 16 base sets, oblique and relief (their own
+    # renders) on the two their key sets names; a mission set per condition and base set it runs on.
+    missions = 2 * 16 + 2 * 2
+    assert jobs["render_condition"] == 2 * 2
+    assert jobs["mission"] == jobs["match_features"] == missions  # one set of features and matches for both prior settings
+    assert jobs["reconstruct"] == jobs["refine_cloud"] == missions * 2  # with and without priors
     # One job per cloud runs (and one scores) all three estimators.
-    assert jobs["estimate_cloud"] == jobs["score_cloud"] == 2 * 16 * 2
+    assert jobs["estimate_cloud"] == jobs["score_cloud"] == missions * 2
     assert jobs["noise_monte_carlo"] == 16
     assert jobs["geometry_sensitivity"] == 16
     # The shape model ships with the workflow: a clone needs no network.
@@ -50,7 +51,7 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["render_model_set"] == 5 * 2 + 6
     assert jobs["fit_model_set"] == 5 * 2 and jobs["phase_sweep_set"] == 8 and jobs["tabulate_model_mismatch"] == 1
     # The disk and memory it needs, estimated before anything runs.
-    assert "estimated footprint of this run: 1.9 GB on disk for 96 image sets" in run.stdout + run.stderr
+    assert "estimated footprint of this run: 2.1 GB on disk for 100 image sets" in run.stdout + run.stderr
 
 
 def test_dry_run_plans_the_download_when_asked(tmp_path):

@@ -17,7 +17,7 @@ WORKFLOW_DIR = Path(_basedir).resolve().parent
 if str(WORKFLOW_DIR) not in sys.path:
     sys.path.insert(0, str(WORKFLOW_DIR))
 
-from asteroid_photometry.core.config import renders_own_sets, table2_conditions, validate_config, ConfigError
+from asteroid_photometry.core.config import condition_sets, renders_own_sets, table2_conditions, validate_config, ConfigError
 from asteroid_photometry.world.image_sets import condition_rendered_set, image_sets, named_entry
 from asteroid_photometry.world.shape import get_shape_model_spec
 from asteroid_photometry.experiments.mismatch import model_sets
@@ -42,6 +42,18 @@ CONDITIONS = table2_conditions(config)
 _CONDITIONS_OFF = sorted({entry["name"] for entry in config["imaging_conditions"]} - set(CONDITIONS)) if PRIOR_SETTINGS else []
 if _CONDITIONS_OFF:
     logger.info(f"imaging conditions off (the noise level or surface map they need is turned off): {', '.join(_CONDITIONS_OFF)}")
+# The base sets each condition runs on (its key sets; all by default).
+try:
+    CONDITION_SETS = condition_sets(CONDITIONS, BASE_SETS)
+except ConfigError as error:
+    raise WorkflowError(f"invalid configuration: {error}") from None
+
+
+def per_condition(pattern, **wildcards):
+    """expand() of a Table 2 path over every imaging condition and the base sets it runs on."""
+    return [path for imaging, set_ids in CONDITION_SETS.items() for path in expand(pattern, imaging=imaging, set_id=set_ids, **wildcards)]
+
+
 # The conditions that render their own copy of every set they start from (views, Sun or relief of their own).
 OWN_RENDER_CONDITIONS = [name for name, entry in CONDITIONS.items() if renders_own_sets(entry)]
 # The cloud drawn in Table 2's figure: the first condition's.
@@ -67,7 +79,7 @@ ESTIMATORS = config["estimators"]
 
 # The disk and memory the configured run needs, against what this machine
 # has: in the log of every run, dry runs included (make footprint).
-FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS), n_model_sets=len(MODEL_SETS), conditions=CONDITIONS)
+FOOTPRINT = estimate_footprint(config, SETS, len(PRIOR_SETTINGS), len(ESTIMATORS), n_model_sets=len(MODEL_SETS), conditions=CONDITIONS, condition_sets=CONDITION_SETS)
 logger.info(FOOTPRINT.summary())
 try:
     PARALLEL_JOBS = int(workflow.cores)
@@ -77,7 +89,7 @@ for _warning in footprint_warnings(FOOTPRINT, Path.cwd(), PARALLEL_JOBS):
     logger.warning(f"warning: {_warning}")
 # Table 2's figures: the paper's estimator (or the first one), the cloud of the last base set.
 TABLE2_PLOT_METHOD = "koizumi_lm" if "koizumi_lm" in ESTIMATORS else ESTIMATORS[0]
-TABLE2_PLOT_SET = BASE_SETS[-1]
+TABLE2_PLOT_SET = CONDITION_SETS[TABLE2_PLOT_CONDITION][-1] if CONDITIONS else BASE_SETS[-1]
 NAME = "[A-Za-z0-9-]+"
 RENDERED_SET = f"light[^/_]+_albedo[^/_]+_k[^/_]+(_map-{NAME})?"
 
@@ -125,8 +137,9 @@ def condition_cameras(wildcards):
 
 def mission_condition(wildcards):
     """The condition as the mission stage takes it, without its relief, which only the renderer reads (a relief
-    changed or added renders the sets again, and the mission sets follow through their input)."""
-    return {key: value for key, value in CONDITIONS[wildcards.imaging].items() if key != "relief"}
+    changed or added renders the sets again, and the mission sets follow through their input), and without the
+    sets it runs on (a set added to them leaves the others' mission sets standing)."""
+    return {key: value for key, value in CONDITIONS[wildcards.imaging].items() if key not in ("relief", "sets")}
 
 
 def mission_seed(wildcards):

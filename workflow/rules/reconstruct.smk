@@ -143,7 +143,7 @@ rule score_cloud:
 
 rule tabulate_table2:
     input:
-        summaries=expand(CLOUD_SUMMARY, imaging=CONDITIONS, set_id=BASE_SETS, priors=PRIOR_SETTINGS, method=ESTIMATORS),
+        summaries=per_condition(CLOUD_SUMMARY, priors=PRIOR_SETTINGS, method=ESTIMATORS),
     output:
         csv=report("results/tables/table2.csv", caption="../report/table2.rst", category="Tables"),
         markdown="results/tables/table2.md",

@@ -251,6 +251,22 @@ def _check_imaging_conditions(config):
             raise ConfigError(f"{where}: prior_sigma_m 0 gives no navigation priors, but reconstruction.priors asks for a reconstruction with them")
 
 
+def condition_sets(conditions: dict, base_sets: list) -> dict:
+    """The base sets each of Table 2's ``conditions`` (by name) runs on: its ``sets``, in the order of
+    ``base_sets``, or all of them where ``sets`` is null; :class:`ConfigError` for a set id not among them."""
+    chosen = {}
+    for position, (name, entry) in enumerate(conditions.items()):
+        wanted = entry.get("sets")
+        unknown = [set_id for set_id in wanted or [] if set_id not in base_sets]
+        if unknown:
+            raise ConfigError(
+                f"config key 'imaging_conditions' ({name}): sets {unknown} are not base sets of this config "
+                f"(its {len(base_sets)} base sets are named as {base_sets[0]!r}: light angle, albedo, k)"
+            )
+        chosen[name] = [set_id for set_id in base_sets if wanted is None or set_id in wanted]
+    return chosen
+
+
 #: The imaging-condition keys that change the rendered images, not only how a camera records them.
 CONDITION_RENDER_KEYS = ("view_latitude_deg", "light_out_of_plane_deg", "relief")
 

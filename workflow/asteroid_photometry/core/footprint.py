@@ -75,24 +75,27 @@ def _size(n_bytes: float) -> str:
     return f"{n_bytes / 1e9:.1f} GB" if n_bytes >= 1e9 else f"{n_bytes / 1e6:.0f} MB"
 
 
-def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estimators: int, n_model_sets: int = 0, conditions: dict | None = None) -> Footprint:
+def estimate_footprint(config: dict, sets: dict, n_prior_settings: int, n_estimators: int, n_model_sets: int = 0, conditions: dict | None = None, condition_sets: dict | None = None) -> Footprint:
     """The disk and memory of the run that ``config`` asks for (``sets``: ``experiment.image_sets(config)``;
     ``n_model_sets``: the model-mismatch experiment's rendered sets, noise-free images as the others;
-    ``conditions``: Table 2's imaging conditions by name, one mission set of every base set each; None: one, noise-free)."""
+    ``conditions``: Table 2's imaging conditions by name, one mission set of each base set it runs on
+    (``condition_sets``, by name; None: every base set); None: one, noise-free)."""
     pixels = config["n_images"] * config["image_size"] ** 2
     noisy = sum(1 for s in sets.values() if s.noise_level)
     base = sum(1 for s in sets.values() if s.is_base)
     conditions = {"ideal": {}} if conditions is None else conditions
-    noisy_conditions = sum(1 for entry in conditions.values() if entry.get("sensor_level"))
-    # A condition of its own views, Sun or relief renders its own copy of every base set (noise-free, as the others).
-    own_renders = base * sum(1 for entry in conditions.values() if renders_own_sets(entry)) if n_prior_settings else 0
-    runs = base * len(conditions) * n_prior_settings  # reconstructions of Table 2
-    matched = base * len(conditions) if n_prior_settings else 0  # their features, one set for every prior setting
+    runs_of = {name: len(condition_sets[name]) if condition_sets else base for name in conditions}  # base sets per condition
+    noisy_missions = sum(runs_of[name] for name, entry in conditions.items() if entry.get("sensor_level"))
+    missions = sum(runs_of.values())
+    # A condition of its own views, Sun or relief renders its own copy of every base set it runs on (noise-free, as the others).
+    own_renders = sum(runs_of[name] for name, entry in conditions.items() if renders_own_sets(entry)) if n_prior_settings else 0
+    runs = missions * n_prior_settings  # reconstructions of Table 2
+    matched = missions if n_prior_settings else 0  # their features, one set for every prior setting
     per_set = {
         "rendered images": BYTES_PER_PIXEL["render"] * (len(sets) - noisy + n_model_sets + own_renders) + BYTES_PER_PIXEL["render_noisy"] * noisy,
         "observations and fits": BYTES_PER_PIXEL["observations"] * len(sets) + BYTES_PER_PIXEL["fits"] * len(sets) * n_estimators
         + BYTES_PER_PIXEL["observation_geometry"],
-        "mission sets": (BYTES_PER_PIXEL["render"] * (len(conditions) - noisy_conditions) + BYTES_PER_PIXEL["render_noisy"] * noisy_conditions) * base
+        "mission sets": BYTES_PER_PIXEL["render"] * (missions - noisy_missions) + BYTES_PER_PIXEL["render_noisy"] * noisy_missions
         if n_prior_settings else 0.0,
         "reconstructions": BYTES_PER_PIXEL["features"] * matched + BYTES_PER_PIXEL["reconstruction"] * runs,
         "clouds": BYTES_PER_PIXEL["cloud"] * runs,
