@@ -2,7 +2,7 @@
 #
 #   make               same as `make reproduce`: the full workflow, then results/report.zip
 #   make test          pytest on tests/ (unit, schema and the small end-to-end run)
-#   make tuning        the tuning grid (config/tuning.yaml: no set of the paper's) in runs/tuning/
+#   make tuning        the tuning grid (config/tuning.yaml: no set of the paper's) in runs/tuning/, runs/tuning-20/, runs/tuning-72/
 #   make test-cluster  the small config on a one-node SLURM brought up on this machine
 #                      (root; see tests/cluster/run_cluster_test.sh)
 #   make venv          the virtual environment $(VENV) from requirements.txt
@@ -59,9 +59,14 @@ reproduce: sysdeps venv
 	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
 
 # The tuning grid, in its own working directory (its results/ under runs/tuning/), so
-# that it never mixes with the reproduction's.
+# that it never mixes with the reproduction's; then the grid at the two ends of the
+# images per turn a user may choose: 20 (all its sets, runs/tuning-20/) and 72 (the
+# sets of albedo 0.85 at light 5 degrees, runs/tuning-72/).
+TUNING := $(SNAKEMAKE) --configfile config/tuning.yaml --rerun-incomplete
 tuning: sysdeps venv
-	$(RUN_ENV) $(SNAKEMAKE) --configfile config/tuning.yaml --directory runs/tuning --rerun-incomplete $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(TUNING) --directory runs/tuning $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(TUNING) --directory runs/tuning-20 --config n_images=20 $(SNAKEMAKE_ARGS)
+	$(RUN_ENV) $(TUNING) --directory runs/tuning-72 --config n_images=72 'albedos=[0.85]' 'light_angles_deg=[5]' $(SNAKEMAKE_ARGS)
 
 report: venv
 	$(RUN_ENV) $(SNAKEMAKE) --report results/report.zip $(SNAKEMAKE_ARGS)
