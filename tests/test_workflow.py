@@ -39,6 +39,8 @@ def test_dry_run_of_the_full_config(tmp_path):
     # renders) on the two their key sets names; a mission set per condition and base set it runs on.
     missions = 2 * 16 + 2 * 2
     assert jobs["render_condition"] == 2 * 2
+    # Their renders' seconds go into runtime.csv with every other stage's.
+    assert "benchmarks/render_condition/light10_albedo0.5_k0.8_map-field_imaging-relief.tsv" in run.stdout
     assert jobs["mission"] == jobs["match_features"] == missions  # one set of features and matches for both prior settings
     assert jobs["reconstruct"] == jobs["refine_cloud"] == missions * 2  # with and without priors
     # One job per cloud runs (and one scores) all three estimators.

@@ -54,6 +54,17 @@ def per_condition(pattern, **wildcards):
     return [path for imaging, set_ids in CONDITION_SETS.items() for path in expand(pattern, imaging=imaging, set_id=set_ids, **wildcards)]
 
 
+def condition_render_jobs():
+    """The wildcards (set_id, imaging) of every render_condition job: the rendered set each own-render condition
+    starts from for each base set it runs on, split at the condition's suffix."""
+    jobs = []
+    for imaging, entry in CONDITIONS.items():
+        for set_id in CONDITION_SETS[imaging] if renders_own_sets(entry) else []:
+            rendered, _, name = condition_rendered_set(set_id, entry).rpartition("_imaging-")
+            jobs.append({"set_id": rendered, "imaging": name})
+    return jobs
+
+
 # The conditions that render their own copy of every set they start from (views, Sun or relief of their own).
 OWN_RENDER_CONDITIONS = [name for name, entry in CONDITIONS.items() if renders_own_sets(entry)]
 # The cloud drawn in Table 2's figure: the first condition's.

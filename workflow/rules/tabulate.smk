@@ -43,6 +43,7 @@ rule tabulate_runtime:
             *expand(rules.fit.benchmark, set_id=SETS, method=ESTIMATORS),
             *expand(rules.noise_monte_carlo.benchmark, set_id=MONTE_CARLO_SETS),
             *expand(rules.geometry_sensitivity.benchmark, set_id=SENSITIVITY_SETS),
+            *[rules.render_condition.benchmark.format(**job) for job in condition_render_jobs()],
             *per_condition(rules.mission.benchmark),
             *(per_condition(rules.match_features.benchmark) if PRIOR_SETTINGS else []),
             *per_condition(rules.reconstruct.benchmark, priors=PRIOR_SETTINGS),
