@@ -17,8 +17,6 @@ REPO = Path(__file__).resolve().parents[1]
 PROFILE = REPO / "profiles" / "slurm"
 # The full config without a local shape model: every rule, the download included.
 PLAN = ["-n", "--workflow-profile", str(PROFILE), "--configfile", str(REPO / "config" / "config.yaml")]
-# Cluster rules the full config does not run: an imaging condition's own render (config/conditions_geometry.yaml).
-OPT_IN_RULES = {"render_condition"}
 
 
 def dry_run(tmp_path, *args, env=None):
@@ -57,20 +55,20 @@ def test_partition_and_account_come_from_the_environment_and_every_cluster_rule_
     local = local_rules()
     assert {rule for rule, _ in jobs if rule.startswith(("tabulate_", "plot_"))} <= local
     cluster_rules = {rule for rule, _ in jobs if rule not in local}
-    assert cluster_rules == set(sized) - OPT_IN_RULES, "set-resources must name exactly the rules that run as cluster jobs"
+    assert cluster_rules == set(sized), "set-resources must name exactly the rules that run as cluster jobs"
     for rule, resources in jobs:
         if rule in sized:
             assert int(resources["mem_mb"]) == sized[rule]["mem_mb"], rule
             assert int(resources["runtime"]) == sized[rule]["runtime"], rule
 
 
-def test_the_rules_only_some_configs_run_are_sized_too(tmp_path):
+def test_the_rules_of_another_shipped_config_are_sized_too(tmp_path):
     jobs = dry_run(tmp_path, "--configfile", str(REPO / "config" / "conditions_geometry.yaml"))
     sized = profile()["set-resources"]
-    assert OPT_IN_RULES <= {rule for rule, _ in jobs}
+    assert "render_condition" in {rule for rule, _ in jobs}
     assert {rule for rule, _ in jobs if rule not in local_rules()} <= set(sized)
     for rule, resources in jobs:
-        if rule in OPT_IN_RULES:
+        if rule in sized:
             assert int(resources["mem_mb"]) == sized[rule]["mem_mb"] and int(resources["runtime"]) == sized[rule]["runtime"], rule
 
 
