@@ -255,7 +255,7 @@ def condition_sets(conditions: dict, base_sets: list) -> dict:
     """The base sets each of Table 2's ``conditions`` (by name) runs on: its ``sets``, in the order of
     ``base_sets``, or all of them where ``sets`` is null; :class:`ConfigError` for a set id not among them."""
     chosen = {}
-    for position, (name, entry) in enumerate(conditions.items()):
+    for name, entry in conditions.items():
         wanted = entry.get("sets")
         unknown = [set_id for set_id in wanted or [] if set_id not in base_sets]
         if unknown:
