@@ -363,3 +363,27 @@ def test_verified_pairs_counts_only_pairs_the_verification_accepted(tmp_path):
     with pycolmap.Database.open(tmp_path / "features" / "database.db") as database:
         assert database.num_matched_image_pairs() == 6  # the pairs were matched, and looked at
     assert matched["n_verified_pairs"] == 0
+
+
+def _inlier_matches(database_path) -> int:
+    import pycolmap
+
+    with pycolmap.Database.open(database_path) as database:
+        _, counts = database.read_two_view_geometry_num_inliers()
+    return int(np.sum(counts))
+
+
+def test_guided_matching_with_a_looser_ratio_finds_more_inlier_matches(sphere_images, tmp_path):
+    """The config's guided_matching and match_max_ratio reach COLMAP's matcher, are recorded, and add verified matches."""
+    from asteroid_photometry.experiments.table2 import feature_options
+
+    images, intrinsics, _ = sphere_images
+    settings = {"sift_peak_threshold": rc.FeatureOptions().peak_threshold, "guided_matching": True, "match_max_ratio": 0.9}
+    guided_options = feature_options(settings)
+    assert (guided_options.guided_matching, guided_options.max_ratio, guided_options.min_pose_inliers) == (True, 0.9, rc.FeatureOptions().min_pose_inliers)
+    assert feature_options({**settings, "min_pose_inliers": 9, "min_pose_inlier_ratio": 0.2}).min_pose_inliers == 9
+    plain = rc.match_images(images, intrinsics, tmp_path / "plain")
+    guided = rc.match_images(images, intrinsics, tmp_path / "guided", features=guided_options)
+    assert guided["features"]["guided_matching"] is True and guided["features"]["max_ratio"] == 0.9
+    assert plain["features"]["guided_matching"] is False
+    assert _inlier_matches(tmp_path / "guided" / "database.db") > _inlier_matches(tmp_path / "plain" / "database.db")

@@ -64,8 +64,11 @@ STATUS_FILE = "status.json"
 #: The reconstruction keys (config key ``reconstruction``) each Table 2 stage reads, and no other: the rules pass
 #: each stage only its own (:func:`stage_settings`), so a key read here but not declared fails loudly.
 STAGE_KEYS = {
-    "match_features": ("sift_peak_threshold",),
-    "reconstruct": ("intrinsics", "tie_point_sigma_px", "sift_peak_threshold", "min_pose_inliers", "min_pose_inlier_ratio", "min_track"),
+    "match_features": ("sift_peak_threshold", "guided_matching", "match_max_ratio"),
+    "reconstruct": (
+        "intrinsics", "tie_point_sigma_px", "sift_peak_threshold", "guided_matching", "match_max_ratio", "min_pose_inliers",
+        "min_pose_inlier_ratio", "min_track",
+    ),
     "register": ("min_track",),
     "cloud": ("min_observations_per_point", "min_cos_emission", "purity_tolerance"),
     "refine": (
@@ -78,6 +81,15 @@ STAGE_KEYS = {
 def stage_settings(reconstruction: dict, stage: str) -> dict:
     """The keys of the config's ``reconstruction`` entry that ``stage`` reads (:data:`STAGE_KEYS`)."""
     return {key: reconstruction[key] for key in STAGE_KEYS[stage]}
+
+
+def feature_options(settings: dict) -> reconstruct.FeatureOptions:
+    """SIFT, matching and the mapper's registration thresholds from the config's ``reconstruction`` keys
+    (those of ``match_features``; the mapper's where ``settings`` has them)."""
+    mapper = {key: settings[key] for key in ("min_pose_inliers", "min_pose_inlier_ratio") if key in settings}
+    return reconstruct.FeatureOptions(
+        peak_threshold=settings["sift_peak_threshold"], guided_matching=settings["guided_matching"], max_ratio=settings["match_max_ratio"], **mapper,
+    )
 
 
 def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3) -> float:
@@ -136,7 +148,7 @@ def _match_features(mission_dir, out_dir: Path, threads: int, settings: dict) ->
     mission, images = read_mission(mission_dir)  # checked before any work
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     reconstruct.match_images(
-        images, Intrinsics(**mission["intrinsics"]), part, features=reconstruct.FeatureOptions(peak_threshold=settings["sift_peak_threshold"]),
+        images, Intrinsics(**mission["intrinsics"]), part, features=feature_options(settings),
         num_threads=threads, seed=reconstruct.MATCHING_SEED,
     )
     write_status_json(part / STATUS_FILE)
@@ -186,10 +198,7 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
             features_dir, part / "work", prior_positions=prior_positions if use_priors else None,
             intrinsics_mode=settings["intrinsics"], camera_position_sigma_m=prior_sigma_m if use_priors else 1.0,
             tie_point_sigma_px=settings["tie_point_sigma_px"], seed=seed,
-            features=reconstruct.FeatureOptions(
-                peak_threshold=settings["sift_peak_threshold"],
-                min_pose_inliers=settings["min_pose_inliers"], min_pose_inlier_ratio=settings["min_pose_inlier_ratio"],
-            ),
+            features=feature_options(settings),
         )
         n_registered = result.report.n_images_registered
         fraction = outward_fraction(result, settings["min_track"])
