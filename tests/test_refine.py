@@ -166,6 +166,27 @@ def test_refinement_keeps_the_azimuth_it_is_given_and_one_k_pulls_the_elevation_
         assert abs(pure.refined_minnaert_k - MINNAERT_K) < 2e-3
 
 
+def test_with_normals_free_to_tilt_one_albedo_for_the_body_pulls_the_elevation_back(faceted_ball):
+    # Normals free to tilt (no axis) are fitted under a light 2 deg off in elevation; an albedo per point then
+    # lets them keep much of that error in the light step, one albedo for the body (the refinement's step 4
+    # without an axis) does not, since it compares the brightness of points with different normals. The
+    # azimuth, as with an axis, stays where it started.
+    vertices, triangles, normals, poses, images, surface = faceted_ball
+    for elevation, azimuth in ((2.0, 10.0), (0.0, 12.0)):
+        start = _light_at(elevation, azimuth)
+        pure = refine.refine_by_pure_samples(surface, poses, INTRINSICS, images, start, albedo=0.5, minnaert_k=1.0, n_candidates=4000, min_observations=5)
+        assert len(pure.points) >= 100
+        one_albedo_error = estimation.angle_between_deg(pure.refined_light_dir_cam, LIGHT_CAM)
+        per_point = estimation.fit_pooled_k(pure.observations, start, 1.0, min_observations=5)
+        if elevation:
+            assert one_albedo_error < 0.2
+            assert estimation.angle_between_deg(per_point.light_dir_cam, LIGHT_CAM) > 0.3
+        else:
+            assert 1.8 < one_albedo_error < 2.2
+        assert abs(pure.refined_minnaert_k - MINNAERT_K) < 5e-3
+    assert refine.one_albedo(pure.observations).n_points == 1 and refine.one_albedo(pure.observations).n_obs == pure.observations.n_obs
+
+
 def test_without_refinement_the_sphere_samples_give_biased_k(faceted_ball, refined):
     # The control: the same images sampled bilinearly at points of the smooth sphere with its normals.
     vertices, triangles, normals, poses, images, surface = faceted_ball

@@ -23,7 +23,8 @@ normals (:func:`refine_by_pure_samples`):
    facets do not fit one normal;
 4. the light is fitted again to the accepted points' pure samples, with
    their normals held and one Minnaert k for the whole body
-   (``estimate.fit_pooled_k``);
+   (``estimate.fit_pooled_k``); with the normals free to tilt (below), one
+   albedo for the whole body too (:func:`one_albedo`);
 5. the estimator runs again on the accepted points, with their fitted
    normals and pure samples; the paper's estimator fits each point's
    albedo and k under step 4's light.
@@ -261,6 +262,14 @@ def relative_residuals(point_index, rotations, view_cam, brightness, normals, al
     return np.where(counts > 0, residual, np.inf)
 
 
+def one_albedo(observations: Observations) -> Observations:
+    """The same samples as those of one point: a fit to them has one albedo for the whole body (each row keeps its own normal)."""
+    return Observations(
+        point_index=np.zeros(observations.n_obs, dtype=int), normal_cam=observations.normal_cam, view_cam=observations.view_cam,
+        brightness=observations.brightness, n_points=1,
+    )
+
+
 @dataclass
 class PureSampleCloud:
     """The refined cloud: accepted points with fitted normals and their pure samples."""
@@ -435,12 +444,17 @@ def refine_by_pure_samples(
     observations = Observations(
         point_index=point_index[keep], normal_cam=normal_cam[keep], view_cam=view_cam[keep], brightness=brightness[keep], n_points=len(points),
     )
-    # The light again, from the pure samples, with one k for the body (step 4, module docstring).
+    # The light again, from the pure samples, with one k for the body (step 4, module docstring); with the
+    # normals free to tilt, one albedo for the body too.
     refined_light, refined_k = np.full(3, np.nan), np.nan
     if observations.n_obs >= 3 + np.count_nonzero(observations.observations_per_point):  # an albedo per point, one k, the light
-        pooled = fit_pooled_k(observations, light_dir_cam, minnaert_k, min_observations=min_observations)
+        light_samples = observations if axis is not None else one_albedo(observations)
+        pooled = fit_pooled_k(light_samples, light_dir_cam, minnaert_k, min_observations=min_observations if axis is not None else 1)
         refined_light, refined_k = pooled.light_dir_cam, float(np.nanmedian(pooled.minnaert_k))
-        log.info("light from the pure samples with one k (%.4f): %.3f deg from the light the normals were fitted under", refined_k, float(angle_between_deg(refined_light, light_dir_cam)))
+        log.info(
+            "light from the pure samples with one k (%.4f)%s: %.3f deg from the light the normals were fitted under", refined_k,
+            "" if axis is not None else " and one albedo (normals free to tilt)", float(angle_between_deg(refined_light, light_dir_cam)),
+        )
     return PureSampleCloud(
         points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points),
         np.asarray(light_dir_cam, dtype=float), refined_light, refined_k,
