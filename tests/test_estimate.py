@@ -389,3 +389,21 @@ def test_solvers_agree_on_noisy_data():
 def test_module_exports_exist():
     for name in estimation.__all__:
         assert hasattr(estimation, name)
+
+
+def test_the_final_fit_sees_only_what_the_refinements_light_lights():
+    """table2.lit_samples: rows below the incidence cut go, a point left with too few rows loses all, the numbering stays."""
+    from asteroid_photometry.estimation import synthetic_observations
+    from asteroid_photometry.experiments.table2 import lit_samples
+    from synthetic_helpers import light_at
+
+    light = light_at(20.0)
+    obs = synthetic_observations(40, 8, light, 0.5, 0.8, np.random.default_rng(5))
+    cos_i = obs.cos_incidence(light)
+    kept = lit_samples(obs, light, 0.5, 6)
+    assert kept.n_points == obs.n_points and np.all(kept.cos_incidence(light) >= 0.5)
+    expected_rows = (cos_i >= 0.5) & (np.bincount(obs.point_index[cos_i >= 0.5], minlength=obs.n_points)[obs.point_index] >= 6)
+    assert kept.n_obs == int(expected_rows.sum()) and 0 < kept.n_obs < obs.n_obs
+    assert set(np.unique(kept.point_index)) == set(np.flatnonzero(np.bincount(kept.point_index, minlength=obs.n_points) >= 6))
+    np.testing.assert_array_equal(kept.brightness, obs.brightness[expected_rows])
+    assert lit_samples(obs, light, 0.0, 1).n_obs == obs.n_obs

@@ -489,15 +489,41 @@ def estimate_before_refinement(stage: CloudStage, method: str, known_k: float) -
     return plausible_points(run_estimator(stage.obs, method, known_k=known_k, robust=True))
 
 
-def estimate_after_refinement(stage: CloudStage, method: str, known_k: float) -> tuple[estimation.FitResult, estimation.FitResult, float]:
-    """The estimator on the refined cloud's pure samples: (``after``, ``joint``, seconds) as in :class:`CloudFits`."""
+#: The paper's per-point albedo and k under the refinement's light use the samples that light lights: a sample it
+#: puts at grazing incidence or in shadow (cosine below this; Table 1's default incidence cut) makes its point's
+#: albedo unbounded. The refinement chose its samples under the light it started from; where its own light moves
+#: far from that (the `oblique` condition: 5 degrees) a few of them fall beyond the terminator.
+FINAL_MIN_COS_INCIDENCE = 0.1
+
+
+def lit_samples(observations: estimation.Observations, light_dir_cam, min_cos_incidence: float, min_observations: int) -> estimation.Observations:
+    """The rows of ``observations`` that ``light_dir_cam`` lights at a cosine of at least ``min_cos_incidence``, of the
+    points left with at least ``min_observations`` of them (the others lose all their rows); the points' numbering is kept."""
+    keep = observations.cos_incidence(light_dir_cam) >= min_cos_incidence
+    counts = np.bincount(observations.point_index[keep], minlength=observations.n_points)
+    keep &= counts[observations.point_index] >= min_observations
+    return estimation.Observations(
+        point_index=observations.point_index[keep], normal_cam=observations.normal_cam[keep], view_cam=observations.view_cam[keep],
+        brightness=observations.brightness[keep], n_points=observations.n_points,
+    )
+
+
+def final_observations(stage: CloudStage, settings: dict) -> estimation.Observations:
+    """The refined cloud's pure samples that the final fit under the refinement's light uses (:data:`FINAL_MIN_COS_INCIDENCE`)."""
+    pure = stage.pure
+    return lit_samples(pure.observations, pure.refined_light_dir_cam, FINAL_MIN_COS_INCIDENCE, settings["min_observations_per_point"])
+
+
+def estimate_after_refinement(stage: CloudStage, method: str, known_k: float, final_obs: estimation.Observations) -> tuple[estimation.FitResult, estimation.FitResult, float]:
+    """The estimator on the refined cloud's pure samples: (``after``, ``joint``, seconds) as in :class:`CloudFits`;
+    ``koizumi_lm``'s final fit on ``final_obs`` (:func:`final_observations`)."""
     pure = stage.pure
     tick = time.perf_counter()
     if method == "koizumi_lm":
         # Two steps: the refinement's light (one k for the body), then the paper's per-point albedo and k under it.
         # The paper's joint fit, light free, is kept beside it (columns *_refined_joint).
         joint = plausible_points(run_estimator(pure.observations, method, light_init=pure.light_dir_cam))
-        after = run_estimator(pure.observations, method, light_init=pure.refined_light_dir_cam, hold_light=True)
+        after = run_estimator(final_obs, method, light_init=pure.refined_light_dir_cam, hold_light=True)
     else:
         joint, after = None, run_estimator(pure.observations, method, known_k=known_k, robust=True)
     refit_seconds = time.perf_counter() - tick
@@ -627,11 +653,11 @@ def fit_from_arrays(data, prefix: str) -> estimation.FitResult:
     return estimation.FitResult(**values)
 
 
-def light_bound_deg(stage: CloudStage, fit: estimation.FitResult, settings: dict) -> float:
+def light_bound_deg(stage: CloudStage, fit: estimation.FitResult, settings: dict, observations: estimation.Observations | None = None) -> float:
     """The Cramer-Rao standard deviation (deg) of the light for the refined cloud's pure samples under the mission's sensor noise.
 
     The bound of any unbiased estimate of the light from the observations
-    the final fit used (``stage.pure``), with an albedo and a k per point
+    the final fit used (``observations``, by default ``stage.pure``'s), with an albedo and a k per point
     and the normals held, evaluated at that fit (``estimation.fisher``); the
     variance of each sample is the sensor model's for the mean of four
     pixels (``purity.PurityTest.sample_variance``). NaN for noise-free
@@ -641,7 +667,7 @@ def light_bound_deg(stage: CloudStage, fit: estimation.FitResult, settings: dict
     sensor = stage.mission.get("sensor")
     if not sensor or fit.n_points_fitted == 0:
         return float("nan")
-    observations = stage.pure.observations
+    observations = stage.pure.observations if observations is None else observations
     variance = PurityTest(sensor_from_config(sensor)).sample_variance(observations.brightness)
     bounds = cramer_rao_bounds(
         observations, fit.light_dir_cam, fit.albedo, fit.minnaert_k, variance, min_observations=settings["min_observations_per_point"],
@@ -668,17 +694,19 @@ def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapp
             write_failed_npz(path, reason)
         return
     known_k = float(stage.pure.refined_minnaert_k)  # the workflow's own k for the body (refine_stage), for Iwano's baseline
+    final_obs = final_observations(stage, settings)
     for method, path in out_npz.items():
         try:
             before = estimate_before_refinement(stage, method, known_k)
-            after, joint, refit_seconds = estimate_after_refinement(stage, method, known_k)
+            after, joint, refit_seconds = estimate_after_refinement(stage, method, known_k, final_obs)
         except DataFailure as failure:
             log.warning("%s: no fit", method)
             write_failed_npz(path, record("estimate_cloud", failure))
             continue
         files.savez(
             path, **fit_arrays(before, "before"), **fit_arrays(after, "after"), **fit_arrays(joint, "joint"),
-            refit_seconds=refit_seconds, known_k=known_k, after_light_crb_deg=light_bound_deg(stage, after, settings),
+            refit_seconds=refit_seconds, known_k=known_k,
+            after_light_crb_deg=light_bound_deg(stage, after, settings, final_obs if method == "koizumi_lm" else None),
         )
         log.info("%s: light %s before refinement, %s after", method, np.round(before.light_dir_cam, 6).tolist(), np.round(after.light_dir_cam, 6).tolist())
 
