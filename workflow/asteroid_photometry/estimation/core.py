@@ -152,6 +152,13 @@ class Observations:
         """``n . l`` per observation for a camera-frame light direction (unclamped)."""
         return self.normal_cam @ np.asarray(light_dir_cam, dtype=np.float64)
 
+    def rows(self, keep) -> "Observations":
+        """The observations of the rows ``keep`` (a mask or indices), the points' numbering kept."""
+        return Observations(
+            point_index=self.point_index[keep], normal_cam=self.normal_cam[keep], view_cam=self.view_cam[keep],
+            brightness=self.brightness[keep], n_points=self.n_points,
+        )
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class FitResult:

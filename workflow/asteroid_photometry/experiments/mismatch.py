@@ -107,10 +107,6 @@ def _sampled_observations(geometry_npz, shape_npz, cameras_json, thresholds: dic
     return obs, frames
 
 
-def _subset(obs: Observations, keep_rows) -> Observations:
-    return Observations(point_index=obs.point_index[keep_rows], normal_cam=obs.normal_cam[keep_rows], view_cam=obs.view_cam[keep_rows], brightness=obs.brightness[keep_rows], n_points=obs.n_points)
-
-
 def _with_noise(obs: Observations, sensor_entry: dict, seed: int):
     """The observations as the sensor records them (noise is per pixel, so noising the samples is the same), and each one's sigma."""
     sensor = noise.sensor_from_config(sensor_entry)
@@ -205,7 +201,7 @@ def fit_model_set(geometry_npz, shape_npz, cameras_json, render_dir, model: str,
     rng = np.random.default_rng(seed)
     points = np.unique(obs.point_index)
     chosen = rng.choice(points, size=min(int(settings["cross_fit_points"]), len(points)), replace=False)
-    subset = _subset(obs, np.isin(obs.point_index, chosen))
+    subset = obs.rows(np.isin(obs.point_index, chosen))
     variants = [("none", subset, None)]
     if sensor_entry is not None:
         noisy, sigma = _with_noise(subset, sensor_entry, seed + 1)

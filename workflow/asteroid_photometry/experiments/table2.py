@@ -502,10 +502,7 @@ def lit_samples(observations: estimation.Observations, light_dir_cam, min_cos_in
     keep = observations.cos_incidence(light_dir_cam) >= min_cos_incidence
     counts = np.bincount(observations.point_index[keep], minlength=observations.n_points)
     keep &= counts[observations.point_index] >= min_observations
-    return estimation.Observations(
-        point_index=observations.point_index[keep], normal_cam=observations.normal_cam[keep], view_cam=observations.view_cam[keep],
-        brightness=observations.brightness[keep], n_points=observations.n_points,
-    )
+    return observations.rows(keep)
 
 
 def final_observations(stage: CloudStage, settings: dict) -> estimation.Observations:
