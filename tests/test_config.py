@@ -253,6 +253,16 @@ def test_the_sun_out_of_plane_keeps_the_phase_angle_within_the_light_angles_rang
     assert validate_config(_with_condition(test_config, light_out_of_plane_deg=-40))
 
 
+def test_the_pairs_turn_must_reach_the_next_image(test_config):
+    test_config["n_images"] = 20
+    test_config["reconstruction"]["match_max_turn_deg"] = 15
+    message = _error(test_config)
+    assert message.startswith("config key 'reconstruction.match_max_turn_deg': 15 deg pairs no image with another")
+    assert "turns 18 deg between images at n_images 20" in message
+    test_config["reconstruction"]["match_max_turn_deg"] = 54
+    assert validate_config(test_config)["reconstruction"]["match_max_turn_deg"] == 54
+
+
 def test_non_mapping_config_is_rejected():
     with pytest.raises(ConfigError, match="mapping"):
         validate_config(None)

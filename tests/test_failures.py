@@ -239,7 +239,7 @@ def four_image_set(tmp_path_factory):
 
 
 RECONSTRUCTION = {
-    "intrinsics": "fixed", "tie_point_sigma_px": 1.0, "sift_peak_threshold": 0.002, "guided_matching": False, "match_max_ratio": 0.8,
+    "intrinsics": "fixed", "tie_point_sigma_px": 1.0, "sift_peak_threshold": 0.002, "guided_matching": False, "match_max_ratio": 0.8, "match_max_turn_deg": None,
     "min_pose_inliers": 15, "min_pose_inlier_ratio": 0.1, "min_track": 3, "min_observations_per_point": 6, "min_cos_emission": 0.2,
 }
 

@@ -378,7 +378,7 @@ def test_guided_matching_with_a_looser_ratio_finds_more_inlier_matches(sphere_im
     from asteroid_photometry.experiments.table2 import feature_options
 
     images, intrinsics, _ = sphere_images
-    settings = {"sift_peak_threshold": rc.FeatureOptions().peak_threshold, "guided_matching": True, "match_max_ratio": 0.9}
+    settings = {"sift_peak_threshold": rc.FeatureOptions().peak_threshold, "guided_matching": True, "match_max_ratio": 0.9, "match_max_turn_deg": None}
     guided_options = feature_options(settings)
     assert (guided_options.guided_matching, guided_options.max_ratio, guided_options.min_pose_inliers) == (True, 0.9, rc.FeatureOptions().min_pose_inliers)
     assert feature_options({**settings, "min_pose_inliers": 9, "min_pose_inlier_ratio": 0.2}).min_pose_inliers == 9
@@ -387,3 +387,33 @@ def test_guided_matching_with_a_looser_ratio_finds_more_inlier_matches(sphere_im
     assert guided["features"]["guided_matching"] is True and guided["features"]["max_ratio"] == 0.9
     assert plain["features"]["guided_matching"] is False
     assert _inlier_matches(tmp_path / "guided" / "database.db") > _inlier_matches(tmp_path / "plain" / "database.db")
+
+
+def test_rotation_pairs_are_the_images_within_the_turn_across_the_wrap():
+    phase = np.arange(20) * 18.0
+    pairs = rc.rotation_pairs(phase, 54.0)
+    assert len(pairs) == 20 * 3  # three neighbours on each side, each pair once
+    assert (0, 3) in pairs and (0, 17) in pairs and (0, 4) not in pairs and (0, 16) not in pairs  # across 360 deg to 0
+    assert all(i < j for i, j in pairs)
+    with pytest.raises(ValueError, match="image 0 has no other image within 10 deg"):
+        rc.rotation_pairs(phase, 10.0)
+
+
+def test_matching_by_rotation_matches_only_the_neighbours_and_keeps_the_model(sphere_images, tmp_path):
+    """With match_max_turn_deg only the pairs within that turn are matched (and recorded); the set still reconstructs."""
+    from asteroid_photometry.experiments.table2 import feature_options, rotation_phase_deg
+
+    images, intrinsics, _ = sphere_images
+    settings = {"sift_peak_threshold": rc.FeatureOptions().peak_threshold, "guided_matching": False, "match_max_ratio": 0.8, "match_max_turn_deg": 45.0}
+    mission = {"images": [{"time_s": index * 3600.0 * 12.132 / len(images)} for index in range(len(images))]}
+    phase = rotation_phase_deg(mission)
+    np.testing.assert_allclose(phase, np.arange(len(images)) * 360.0 / len(images))
+    matched = rc.match_images(images, intrinsics, tmp_path / "near", features=feature_options(settings), phase_deg=phase)
+    assert matched["features"]["max_turn_deg"] == 45.0 and matched["n_pairs_matched"] == 2 * len(images)  # 20 deg steps: 2 a side
+    with pycolmap.Database.open(tmp_path / "near" / "database.db") as database:
+        assert database.num_matched_image_pairs() == 2 * len(images)
+    assert 0 < matched["n_verified_pairs"] <= 2 * len(images)
+    model = rc.map_matches(tmp_path / "near", tmp_path / "map", features=feature_options(settings))
+    assert model.report.n_images_registered >= 16
+    with pytest.raises(ValueError, match="needs the rotation phase of each"):
+        rc.match_images(images, intrinsics, tmp_path / "none", features=feature_options(settings))

@@ -175,8 +175,15 @@ def validate_config(config):
 
 
 def _check_cross_references(config):
-    """What a JSON Schema cannot say: a key that names an entry of another key."""
+    """What a JSON Schema cannot say: a key that names an entry of another key, or must exceed what another implies."""
     _check_imaging_conditions(config)
+    max_turn = config.get("reconstruction", {}).get("match_max_turn_deg")
+    if max_turn is not None and "n_images" in config and max_turn < 360.0 / config["n_images"]:
+        raise ConfigError(
+            f"config key 'reconstruction.match_max_turn_deg': {max_turn:g} deg pairs no image with another "
+            f"(the body turns {360.0 / config['n_images']:g} deg between images at n_images {config['n_images']}); "
+            f"set it to at least that, or null to match every pair"
+        )
     models = config.get("model_mismatch", {})
     level_names = [level.get("name") for level in config.get("noise_levels", [])]
     # As for the Monte Carlo: an empty noise_levels turns the noisy cross-fits off, a name that is not there is a mistake.

@@ -42,7 +42,7 @@ from asteroid_photometry.estimation.fisher import cramer_rao_bounds
 from asteroid_photometry.estimation.registry import run_estimator
 from asteroid_photometry.evaluation import metrics, quality
 from asteroid_photometry.evaluation.truth import rendered_truth, true_poses, truth_for_facets
-from asteroid_photometry.experiments.mission import read_truth
+from asteroid_photometry.experiments.mission import ROTATION_PERIOD_H, read_truth
 from asteroid_photometry.from_images import cloud as cloud_lib, reconstruct, refine, register
 from asteroid_photometry.from_images.purity import PurityTest
 from asteroid_photometry.world import mesh
@@ -64,9 +64,9 @@ STATUS_FILE = "status.json"
 #: The reconstruction keys (config key ``reconstruction``) each Table 2 stage reads, and no other: the rules pass
 #: each stage only its own (:func:`stage_settings`), so a key read here but not declared fails loudly.
 STAGE_KEYS = {
-    "match_features": ("sift_peak_threshold", "guided_matching", "match_max_ratio"),
+    "match_features": ("sift_peak_threshold", "guided_matching", "match_max_ratio", "match_max_turn_deg"),
     "reconstruct": (
-        "intrinsics", "tie_point_sigma_px", "sift_peak_threshold", "guided_matching", "match_max_ratio", "min_pose_inliers",
+        "intrinsics", "tie_point_sigma_px", "sift_peak_threshold", "guided_matching", "match_max_ratio", "match_max_turn_deg", "min_pose_inliers",
         "min_pose_inlier_ratio", "min_track",
     ),
     "register": ("min_track",),
@@ -88,8 +88,15 @@ def feature_options(settings: dict) -> reconstruct.FeatureOptions:
     (those of ``match_features``; the mapper's where ``settings`` has them)."""
     mapper = {key: settings[key] for key in ("min_pose_inliers", "min_pose_inlier_ratio") if key in settings}
     return reconstruct.FeatureOptions(
-        peak_threshold=settings["sift_peak_threshold"], guided_matching=settings["guided_matching"], max_ratio=settings["match_max_ratio"], **mapper,
+        peak_threshold=settings["sift_peak_threshold"], guided_matching=settings["guided_matching"], max_ratio=settings["match_max_ratio"],
+        max_turn_deg=settings["match_max_turn_deg"], **mapper,
     )
+
+
+def rotation_phase_deg(mission: dict) -> np.ndarray:
+    """Each image's rotation phase (degrees) from its time in the mission set and the body's rotation period (``ROTATION_PERIOD_H``)."""
+    times_s = np.array([entry["time_s"] for entry in mission["images"]], dtype=float)
+    return 360.0 * times_s / (ROTATION_PERIOD_H * 3600.0)
 
 
 def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3) -> float:
@@ -148,7 +155,7 @@ def _match_features(mission_dir, out_dir: Path, threads: int, settings: dict) ->
     mission, images = read_mission(mission_dir)  # checked before any work
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     reconstruct.match_images(
-        images, Intrinsics(**mission["intrinsics"]), part, features=feature_options(settings),
+        images, Intrinsics(**mission["intrinsics"]), part, features=feature_options(settings), phase_deg=rotation_phase_deg(mission),
         num_threads=threads, seed=reconstruct.MATCHING_SEED,
     )
     write_status_json(part / STATUS_FILE)

@@ -621,6 +621,9 @@ class FeatureOptions:
     domain_size_pooling: bool = False
     guided_matching: bool = False
     max_ratio: float = 0.8
+    # Which pairs are matched: None, every pair; a number, only the pairs whose rotation phases (from the
+    # image times) differ by at most this many degrees (:func:`rotation_pairs`).
+    max_turn_deg: float | None = None
     # The mapper's image registration (COLMAP: abs_pose_min_num_inliers 30, abs_pose_min_inlier_ratio
     # 0.25). With ~400 features per image on the k = 0.7 sets, 30 inliers split the mapper into
     # 3 models of 16, 15 and 11 images; 15 and 0.1 register all 36 with unchanged reprojection
@@ -677,7 +680,7 @@ def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: i
 
 
 #: The SIFT and matching fields of :class:`FeatureOptions` (the others are the mapper's): what a matched set records.
-MATCHING_FIELDS = ("max_num_features", "peak_threshold", "upright", "domain_size_pooling", "guided_matching", "max_ratio")
+MATCHING_FIELDS = ("max_num_features", "peak_threshold", "upright", "domain_size_pooling", "guided_matching", "max_ratio", "max_turn_deg")
 
 #: A matched set's summary (:func:`match_images`), beside its ``images/`` and ``database.db``.
 MATCHES_FILE = "matches.json"
@@ -754,7 +757,8 @@ def _largest_model(models: dict, n_images: int, n_verified_pairs: int):
         raise DataFailure(
             f"pycolmap registered {max(sizes.values(), default=0)} of {n_images} images in its largest model "
             f"(at least {MIN_REGISTERED_IMAGES} needed; {n_verified_pairs} verified image pairs; where few pairs verify, as at "
-            f"20 images per turn, reconstruction.guided_matching: true with match_max_ratio: 0.9 finds more matches)"
+            f"20 images per turn, reconstruction.guided_matching: true with match_max_ratio: 0.9 finds more matches, and "
+            f"reconstruction.match_max_turn_deg keeps them to images that share surface)"
         )
     model = models[max(sizes, key=sizes.get)]
     log.info("mapper: %d model(s) with %s registered images; keeping the largest", len(models), sorted(sizes.values(), reverse=True))
@@ -780,6 +784,49 @@ def _warn_if_far_from_priors(report: ReconstructionReport) -> None:
         )
 
 
+def rotation_pairs(phase_deg, max_turn_deg: float) -> list[tuple[int, int]]:
+    """The image pairs ``(i, j)``, ``i < j``, whose rotation phases ``phase_deg`` differ by at most ``max_turn_deg`` (modulo 360).
+
+    The body turns between two images by the difference of their phases, so
+    these are the pairs that can share surface. Matching only them keeps the
+    two-view verification from accepting false matches between images that
+    share none (``FeatureOptions.max_turn_deg``). Each image needs at least
+    one partner: a ``ValueError`` names the first that has none.
+    """
+    phase = np.asarray(phase_deg, dtype=float)
+    difference = np.abs(phase[:, None] - phase[None, :]) % 360.0
+    close = np.minimum(difference, 360.0 - difference) <= max_turn_deg + 1e-9
+    np.fill_diagonal(close, False)
+    alone = np.flatnonzero(~close.any(axis=1))
+    if alone.size:
+        raise ValueError(
+            f"image {int(alone[0])} has no other image within {max_turn_deg:g} deg of rotation "
+            f"(reconstruction.match_max_turn_deg); raise it above the turn between consecutive images"
+        )
+    first, second = np.nonzero(np.triu(close, k=1))
+    return list(zip(first.tolist(), second.tolist()))
+
+
+def _match(database_path: Path, names: list[str], pairs, options: dict) -> None:
+    """COLMAP's matching and two-view verification: every pair (``pairs`` None), or those of ``pairs`` (index pairs), listed in ``pairs.txt`` beside the database."""
+    import pycolmap
+
+    if pairs is None:
+        pycolmap.match_exhaustive(database_path, matching_options=options["matching"], verification_options=options["verification"], device=pycolmap.Device.cpu)
+        return
+    pair_list = database_path.parent / PAIRS_FILE
+    pair_list.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = str(pair_list)
+    pycolmap.match_image_pairs(
+        database_path, matching_options=options["matching"], pairing_options=pairing, verification_options=options["verification"], device=pycolmap.Device.cpu,
+    )
+
+
+#: The pairs a matched set matched, when not every pair (:func:`rotation_pairs`), one line per pair of image names.
+PAIRS_FILE = "pairs.txt"
+
+
 def match_images(
     images,
     intrinsics: Intrinsics,
@@ -787,6 +834,7 @@ def match_images(
     *,
     tone_curve: str = DEFAULT_TONE_CURVE,
     features: FeatureOptions | None = None,
+    phase_deg=None,
     num_threads: int = 1,
     seed: int = MATCHING_SEED,
 ) -> dict:
@@ -801,16 +849,24 @@ def match_images(
     settings, keypoints per image, verified pairs, the seconds of each
     step), each replaced if present. No navigation prior enters here: the
     same matched set serves a reconstruction with priors and one without
-    (:func:`map_matches`). ``num_threads`` as :func:`reconstruct_images`;
+    (:func:`map_matches`). ``phase_deg``: each image's rotation phase
+    (degrees), needed when ``features.max_turn_deg`` limits the pairs
+    (:func:`rotation_pairs`). ``num_threads`` as :func:`reconstruct_images`;
     ``seed`` seeds the two-view verification's RANSAC.
     """
     import pycolmap
 
     features = FeatureOptions() if features is None else features
+    pairs = None
+    if features.max_turn_deg is not None:
+        if phase_deg is None or len(phase_deg) != len(images):
+            raise ValueError(f"max_turn_deg {features.max_turn_deg:g} needs the rotation phase of each of the {len(images)} images")
+        pairs = rotation_pairs(phase_deg, features.max_turn_deg)
     out_dir = Path(out_dir)
     image_dir, database_path = out_dir / "images", out_dir / "database.db"
     shutil.rmtree(image_dir, ignore_errors=True)  # only what this function writes: a rerun starts clean
     database_path.unlink(missing_ok=True)
+    (out_dir / PAIRS_FILE).unlink(missing_ok=True)
     pycolmap.set_random_seed(seed)
     names = [image_name(i) for i in range(len(images))]
     reference = write_images(images, names, image_dir, tone_curve)
@@ -823,13 +879,14 @@ def match_images(
     n_keypoints = _keypoint_counts(database_path)
 
     tick = time.perf_counter()
-    pycolmap.match_exhaustive(database_path, matching_options=options["matching"], verification_options=options["verification"], device=pycolmap.Device.cpu)
+    _match(database_path, names, pairs, options)
     stage_seconds["matching"] = time.perf_counter() - tick
 
     summary = {
         "n_images": len(images), "tone_curve": tone_curve, "reference_brightness": reference, "seed": int(seed),
         "features": {key: getattr(features, key) for key in MATCHING_FIELDS},
         "n_keypoints": n_keypoints, "median_keypoints": int(np.median(list(n_keypoints.values()))),
+        "n_pairs_matched": len(images) * (len(images) - 1) // 2 if pairs is None else len(pairs),
         "n_verified_pairs": int(_verified_pairs(database_path)), "stage_seconds": stage_seconds,
     }
     files.write_json(out_dir / MATCHES_FILE, summary)
