@@ -324,6 +324,16 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
             f"({pure.observations.n_obs} pure samples); too few to fit (more with a larger reconstruction.refine_candidates, "
             f"refine_purity_tolerance or refine_max_residual)"
         )
+    if mission.get("sensor") and axis is not None:
+        # Under a sensor: the normals' common turn fixed by the surface, the light with each point's k held to the
+        # body's and a gain per image (refine.anchored_light; docs/table2.md, section 7).
+        try:
+            pure = refine.anchored_light(
+                pure, poses, axis, lambda brightness: np.sqrt(purity_test.sample_variance(brightness)) / brightness,
+                gain_sigma=float(mission.get("gain_sigma") or 0.0), n_images=len(images), min_observations=settings["min_observations_per_point"],
+            )
+        except ValueError as error:
+            raise DataFailure(f"the light step under the sensor failed: {error}") from error
     return pure
 
 

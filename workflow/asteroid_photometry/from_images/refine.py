@@ -70,7 +70,7 @@ on the `amica` sets, where per-point albedo gives 0.25 to 3.1.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
@@ -78,6 +78,7 @@ from scipy.stats import chi2 as chi2_law
 
 from asteroid_photometry.core import files
 from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, Observations
+from asteroid_photometry.estimation.hierarchical import fit_light_k_prior
 from asteroid_photometry.from_images import cloud as cloud_lib
 from asteroid_photometry.reflectance.laws import minnaert_brightness
 from asteroid_photometry.world.cameras import camera_centres_body, Intrinsics
@@ -299,6 +300,7 @@ class PureSampleCloud:
     light_dir_cam: np.ndarray  # the light the normals were fitted under
     refined_light_dir_cam: np.ndarray  # the light fitted to the pure samples with one k for the body (estimate.fit_pooled_k)
     refined_minnaert_k: float  # that k
+    image_gains: np.ndarray | None = None  # per image, the calibration gains the light step divided out (anchored_light); None: none
 
     def save(self, path) -> None:
         """One .npz with the arrays."""
@@ -308,6 +310,7 @@ class PureSampleCloud:
             normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness, image_index=self.image_index,
             offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, light_dir_cam=self.light_dir_cam,
             refined_light_dir_cam=self.refined_light_dir_cam, refined_minnaert_k=self.refined_minnaert_k,
+            **({} if self.image_gains is None else {"image_gains": self.image_gains}),
         )
 
     @classmethod
@@ -320,6 +323,7 @@ class PureSampleCloud:
             return cls(
                 data["points"], data["normals"], data["surface_normals"], observations, data["image_index"], data["offset_px"], data["residual"],
                 int(data["n_candidates"]), data["light_dir_cam"], data["refined_light_dir_cam"], float(data["refined_minnaert_k"]),
+                data["image_gains"] if "image_gains" in data.files else None,
             )
 
 
@@ -474,3 +478,61 @@ def refine_by_pure_samples(
         np.asarray(light_dir_cam, dtype=float), refined_light, refined_k,
     )
 
+
+
+#: The standard deviation of the prior that holds each point's k to the body's in :func:`anchored_light`.
+#: Chosen on the tuning grid (config/tuning.yaml, its `amica` rows), among 0.0125, 0.025, 0.05, 0.1 and 0.2
+#: (docs/table2.md, section 12).
+K_PRIOR_SD = 0.025
+
+
+def common_turn_deg(normals, surface_normals, axis) -> float:
+    """The median signed turn (deg, right-handed about ``axis``) from each surface normal to its fitted normal."""
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    fitted = normals - np.outer(normals @ axis, axis)
+    start = surface_normals - np.outer(surface_normals @ axis, axis)
+    return float(np.degrees(np.median(np.arctan2(np.cross(start, fitted) @ axis, np.einsum("ij,ij->i", start, fitted)))))
+
+
+def anchored_light(pure: PureSampleCloud, poses: dict, axis, relative_sd, *, gain_sigma: float, n_images: int, min_observations: int) -> PureSampleCloud:
+    """The refined cloud with its normals' common turn removed and the light, k and gains fitted under a sensor.
+
+    Turning every normal and the light together about the spin axis changes
+    the brightness only through the weak ``cos_o**(k - 1)`` (section 7 of
+    docs/table2.md): the refinement's fitted normals keep whatever common turn
+    the light they were fitted under gave them. Their surface normals, from
+    the cloud's geometry, fix it: the median turn from the surface normals to
+    the fitted ones (:func:`common_turn_deg`) is taken off every normal. Then
+    the light, each point's albedo and k (held to the body's by
+    :data:`K_PRIOR_SD`) and each image's gain (prior ``gain_sigma``) are fitted
+    together (``estimation.hierarchical.fit_light_k_prior``, each sample
+    weighted by ``relative_sd(brightness)``, its noise over its brightness).
+    The samples are returned with the gains divided out, and the light and
+    body k replace the one-k fit's. ``axis``: the spin axis (``turn_axis``).
+    """
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    turn = common_turn_deg(pure.normals, pure.surface_normals, axis)
+    angle = -np.radians(turn)
+    # Rodrigues' rotation of every normal by -turn about the axis.
+    normals = (pure.normals * np.cos(angle) + np.cross(axis, pure.normals) * np.sin(angle)
+               + np.outer(pure.normals @ axis, axis) * (1.0 - np.cos(angle)))
+    obs = pure.observations
+    rotations = cloud_lib.poses_of(poses, pure.image_index)[:, :3, :3]
+    normal_cam = np.einsum("nij,nj->ni", rotations, normals[obs.point_index])
+    keep = np.einsum("ij,ij->i", normal_cam, obs.view_cam) > 0.05
+    anchored = Observations(obs.point_index[keep], normal_cam[keep], obs.view_cam[keep], obs.brightness[keep], obs.n_points)
+    image_index = pure.image_index[keep]
+    fit = fit_light_k_prior(
+        anchored, image_index, pure.refined_light_dir_cam, pure.refined_minnaert_k, relative_sd=relative_sd(anchored.brightness),
+        k_prior_sd=K_PRIOR_SD, gain_sigma=gain_sigma, n_images=n_images, min_observations=min_observations,
+    )
+    corrected = Observations(anchored.point_index, anchored.normal_cam, anchored.view_cam, anchored.brightness / fit.gains[image_index], anchored.n_points)
+    log.info(
+        "light step under the sensor: the normals' common turn %.2f deg taken off; light %.3f deg from the one-k light, body k %.4f, "
+        "gains %.4f to %.4f (k prior %.2f, gain prior %.3f)", turn, float(angle_between_deg(fit.light_dir_cam, pure.refined_light_dir_cam)),
+        fit.body_k, float(np.min(fit.gains)), float(np.max(fit.gains)), K_PRIOR_SD, gain_sigma,
+    )
+    return replace(
+        pure, normals=normals, observations=corrected, image_index=image_index, refined_light_dir_cam=fit.light_dir_cam,
+        refined_minnaert_k=fit.body_k, image_gains=fit.gains,
+    )
