@@ -14,6 +14,7 @@ The public API, one import away (``from asteroid_photometry import estimation``)
 - :mod:`.light_search`: the grid search of the starting light that koizumi
   and varpro share;
 - :mod:`.fisher`: the Fisher information and the Cramer-Rao bound;
+- :mod:`.hierarchical`: the light with a k per point held to the body's and a gain per image;
 - :mod:`.model_fit`: fits of the photometric model family;
 - :mod:`.registry`: one way to run a named estimator on a set's observations;
 - :mod:`.synthetic`: observations with a known truth, for tests and benchmarks.
