@@ -74,6 +74,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
+from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_law
 
 from asteroid_photometry.core import files
@@ -298,8 +299,8 @@ class PureSampleCloud:
     residual: np.ndarray  # (M,) relative RMS residual of the one-facet fit (with a sensor: over its noise-limited value)
     n_candidates: int
     light_dir_cam: np.ndarray  # the light the normals were fitted under
-    refined_light_dir_cam: np.ndarray  # the light fitted to the pure samples with one k for the body (estimate.fit_pooled_k)
-    refined_minnaert_k: float  # that k
+    refined_light_dir_cam: np.ndarray  # the light fitted to the pure samples: one k for the body (fit_pooled_k), or anchored_light's
+    refined_minnaert_k: float  # that fit's k for the body
     image_gains: np.ndarray | None = None  # per image, the calibration gains the light step divided out (anchored_light); None: none
 
     def save(self, path) -> None:
@@ -512,10 +513,7 @@ def anchored_light(pure: PureSampleCloud, poses: dict, axis, relative_sd, *, gai
     """
     axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
     turn = common_turn_deg(pure.normals, pure.surface_normals, axis)
-    angle = -np.radians(turn)
-    # Rodrigues' rotation of every normal by -turn about the axis.
-    normals = (pure.normals * np.cos(angle) + np.cross(axis, pure.normals) * np.sin(angle)
-               + np.outer(pure.normals @ axis, axis) * (1.0 - np.cos(angle)))
+    normals = Rotation.from_rotvec(-np.radians(turn) * axis).apply(pure.normals)
     obs = pure.observations
     rotations = cloud_lib.poses_of(poses, pure.image_index)[:, :3, :3]
     normal_cam = np.einsum("nij,nj->ni", rotations, normals[obs.point_index])
@@ -529,7 +527,7 @@ def anchored_light(pure: PureSampleCloud, poses: dict, axis, relative_sd, *, gai
     corrected = Observations(anchored.point_index, anchored.normal_cam, anchored.view_cam, anchored.brightness / fit.gains[image_index], anchored.n_points)
     log.info(
         "light step under the sensor: the normals' common turn %.2f deg taken off; light %.3f deg from the one-k light, body k %.4f, "
-        "gains %.4f to %.4f (k prior %.2f, gain prior %.3f)", turn, float(angle_between_deg(fit.light_dir_cam, pure.refined_light_dir_cam)),
+        "gains %.4f to %.4f (k prior %g, gain prior %g)", turn, float(angle_between_deg(fit.light_dir_cam, pure.refined_light_dir_cam)),
         fit.body_k, float(np.min(fit.gains)), float(np.max(fit.gains)), K_PRIOR_SD, gain_sigma,
     )
     return replace(
