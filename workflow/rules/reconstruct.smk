@@ -13,7 +13,8 @@ rule match_features:
         features=directory("results/features/{imaging}/{set_id}"),
     params:
         settings=reconstruction_settings("match_features"),
-    # One thread: feature matching on more is not reproducible under load (see reconstruct_images).
+    # One thread: the matching runs on one whatever this says (reconstruct.MATCHING_THREADS), and two
+    # of these jobs at once keep both cores busier than one whose extraction runs on two.
     threads: 1
     log:
         "logs/match_features/{imaging}/{set_id}.log",

@@ -636,9 +636,17 @@ class FeatureOptions:
 #: Threads of the incremental mapper and of the bundle adjustments. One, for the same model on every
 #: run: Ceres sums the cost and gradient of a multi-threaded evaluation in the order its threads finish
 #: (COLMAP turns threading on above 50000 residuals; these sets have about 12000, so one thread costs
-#: nothing here). Extraction (per image) and matching (per pair) are the same at any thread count, once
-#: the image ids are fixed (``reconstruct_images``).
+#: nothing here). Extraction (per image) is the same at any thread count, once the image ids are fixed
+#: (``reconstruct_images``); matching is not (``MATCHING_THREADS``).
 MAPPING_THREADS = 1
+
+#: Threads of the feature matching, whatever ``num_threads`` asks. One, for the same matches on every
+#: run: on two, COLMAP's CPU matcher builds the descriptor indexes it shares between its threads at the
+#: same time, and 1 run in 60 of the 18-image test set (tests/test_reconstruct.py) gave the first
+#: image's first two pairs 55 and 16 matches instead of 124 and 39. The exact matcher
+#: (``cpu_brute_force_matcher``) has no shared index but took 28 s instead of 2 s on a 36-image set;
+#: one thread of the index matcher is what the workflow ran already (rule match_features).
+MATCHING_THREADS = 1
 
 
 def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: int, seed: int) -> dict:
@@ -653,7 +661,7 @@ def _pycolmap_options(features: FeatureOptions, use_priors: bool, num_threads: i
     extraction.sift.domain_size_pooling = features.domain_size_pooling
 
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = num_threads
+    matching.num_threads = MATCHING_THREADS
     matching.use_gpu = False
     matching.guided_matching = features.guided_matching
     matching.sift.max_ratio = features.max_ratio
@@ -1008,14 +1016,13 @@ def reconstruct_images(
     reconstructs without priors. ``intrinsics_mode`` is ``"fixed"`` (the
     known intrinsics, never refined) or ``"refine"`` (focal lengths refined
     in the final bundle adjustment). ``num_threads`` is for feature
-    extraction and matching (-1: all cores, COLMAP's convention); mapping
-    and bundle adjustment run on ``MAPPING_THREADS``. ``seed`` seeds
-    pycolmap's RANSACs (the two-view verification's among them) and
-    mapper: with one thread (the default, and what the workflow runs) the
-    same images, settings and seed give the same model, bit for bit. With
-    more, a loaded machine was seen to give a model of 1515 points instead
-    of 1539 from the same images (without priors, where nothing pins the
-    model): thread timing reaches the matches.
+    extraction (-1: all cores, COLMAP's convention); matching runs on
+    ``MATCHING_THREADS``, mapping and bundle adjustment on
+    ``MAPPING_THREADS``. ``seed`` seeds pycolmap's RANSACs (the two-view
+    verification's among them) and mapper: the same images, settings and
+    seed give the same model, bit for bit, at any ``num_threads``. (Matching
+    on more threads made thread timing reach the matches: a loaded machine
+    gave a model of 1515 points instead of 1539 from the same images.)
     """
     if prior_positions is not None and np.shape(prior_positions) != (len(images), 3):  # before any work
         raise ValueError(f"{len(images)} images but prior positions of shape {np.shape(prior_positions)}; expected ({len(images)}, 3)")
