@@ -74,6 +74,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2 as chi2_law
 
@@ -495,8 +496,80 @@ def common_turn_deg(normals, surface_normals, axis) -> float:
     return float(np.degrees(np.median(np.arctan2(np.cross(start, fitted) @ axis, np.einsum("ij,ij->i", start, fitted)))))
 
 
+#: The prior standard deviation (degrees) of the light's elevation error that :func:`anchored_light` takes
+#: off the normals' turns: the error their pattern shows is shrunk by ``prior^2 / (prior^2 + se^2)``
+#: (``se``: that measurement's standard error; 0 takes nothing off). Chosen on the tuning grid
+#: (config/tuning.yaml, its `amica` rows), among 0, 0.25, 0.5, 1, 2 and none (no shrinking)
+#: (docs/table2.md, section 12).
+ELEVATION_PRIOR_DEG = 0.5
+
+
+def elevation_turn_pattern(obs: Observations, axis_cam, light_dir_cam, minnaert_k: float, weights) -> np.ndarray:
+    """Per point: the turn about the spin axis (radians) its one-facet fit takes up per radian of the light's elevation error.
+
+    A point's fit moves its normal's turn, albedo and k to explain its
+    samples under the light it is given. A light raised by ``e`` out of the
+    plane of the views (towards the axis) adds ``e * g_e`` to each log
+    brightness; the fit takes up the part of it that a turn can explain once
+    the albedo and k have taken theirs: the coefficient of the turn's
+    derivative ``g_t`` in the weighted regression of ``g_e`` on ``[1, g_k,
+    g_t]``, negated. ``axis_cam``: the spin axis in each row's camera frame;
+    ``weights``: each row's weight (inverse variance of its log brightness).
+    NaN where a point's rows cannot separate the three.
+    """
+    light = np.asarray(light_dir_cam, dtype=float)
+    normal, view = obs.normal_cam, obs.view_cam
+    cos_i = np.clip(normal @ light, 1e-3, None)
+    cos_o = np.clip(np.einsum("ij,ij->i", normal, view), 1e-3, None)
+    turned = np.cross(axis_cam, normal)  # d(normal)/d(turn)
+    g_turn = minnaert_k * (turned @ light) / cos_i + (minnaert_k - 1.0) * np.einsum("ij,ij->i", turned, view) / cos_o
+    raise_dir = axis_cam - (axis_cam @ light)[:, None] * light
+    raise_dir /= np.linalg.norm(raise_dir, axis=1, keepdims=True)
+    g_elev = minnaert_k * np.einsum("ij,ij->i", normal, raise_dir) / cos_i
+    design = np.stack([np.ones_like(g_turn), np.log(cos_i) + np.log(cos_o), g_turn], axis=1)
+    # Each point's 3x3 weighted normal equations, summed over its rows, solved in one batched call.
+    gram = np.zeros((obs.n_points, 3, 3))
+    np.add.at(gram, obs.point_index, weights[:, None, None] * design[:, :, None] * design[:, None, :])
+    rhs = np.zeros((obs.n_points, 3))
+    np.add.at(rhs, obs.point_index, (weights * g_elev)[:, None] * design)
+    pattern = np.full(obs.n_points, np.nan)
+    solvable = np.linalg.cond(gram) < 1e10
+    pattern[solvable] = -np.linalg.solve(gram[solvable], rhs[solvable][:, :, None])[:, 2, 0]
+    return pattern
+
+
+def elevation_in_turns(turns, pattern) -> tuple[float, float, float]:
+    """The light's elevation error (radians) that the turns' pattern shows, its standard error, and the common turn.
+
+    ``turns``: each point's turn from its surface normal to its fitted
+    normal; ``pattern``: :func:`elevation_turn_pattern`. A robust straight-
+    line fit of the turns on the pattern (``scipy.optimize.least_squares``,
+    soft-L1 loss at the turns' robust spread): the slope is the elevation
+    error the turns absorbed, the intercept the common turn. Returns
+    ``(elevation, standard_error, common_turn)``; no elevation (0, inf) from
+    fewer than 10 points or a pattern with no spread.
+    """
+    use = np.isfinite(pattern) & np.isfinite(turns)
+    x, y = pattern[use], turns[use]
+    if x.size < 10 or np.ptp(x) == 0:
+        return 0.0, np.inf, float(np.median(y)) if y.size else 0.0
+    scale = 1.4826 * np.median(np.abs(y - np.median(y)))
+    slope, intercept = np.polyfit(x, y, 1)  # the plain fit, where the robust one starts
+    fit = least_squares(lambda b: b[0] + b[1] * x - y, [intercept, slope], loss="soft_l1", f_scale=max(scale, 1e-6), x_scale="jac")
+    residual = y - fit.x[0] - fit.x[1] * x
+    spread = 1.4826 * np.median(np.abs(residual - np.median(residual)))
+    return float(fit.x[1]), float(spread / np.sqrt(np.sum((x - x.mean()) ** 2))), float(fit.x[0])
+
+
+def turns_about(normals, surface_normals, axis) -> np.ndarray:
+    """Each point's signed turn (radians, right-handed about ``axis``) from its surface normal to its normal."""
+    fitted = normals - np.outer(normals @ axis, axis)
+    start = surface_normals - np.outer(surface_normals @ axis, axis)
+    return np.arctan2(np.cross(start, fitted) @ axis, np.einsum("ij,ij->i", start, fitted))
+
+
 def anchored_light(pure: PureSampleCloud, poses: dict, axis, relative_sd, *, gain_sigma: float, n_images: int, min_observations: int) -> PureSampleCloud:
-    """The refined cloud with its normals' common turn removed and the light, k and gains fitted under a sensor.
+    """The refined cloud with its normals' common turn and elevation pattern taken off, and the light, k and gains fitted under a sensor.
 
     Turning every normal and the light together about the spin axis changes
     the brightness only through the weak ``cos_o**(k - 1)`` (section 7 of
@@ -508,29 +581,51 @@ def anchored_light(pure: PureSampleCloud, poses: dict, axis, relative_sd, *, gai
     :data:`K_PRIOR_SD`) and each image's gain (prior ``gain_sigma``) are fitted
     together (``estimation.hierarchical.fit_light_k_prior``, each sample
     weighted by ``relative_sd(brightness)``, its noise over its brightness).
-    The samples are returned with the gains divided out, and the light and
-    body k replace the one-k fit's. ``axis``: the spin axis (``turn_axis``).
+
+    The starting light's elevation hides in the normals too, not in one
+    common turn but in a pattern of turns (:func:`elevation_turn_pattern`:
+    how far each point's fit turns per radian of elevation error). The turns
+    from the surface normals are fitted on that pattern
+    (:func:`elevation_in_turns`); the elevation error it shows, shrunk by its
+    standard error against :data:`ELEVATION_PRIOR_DEG`, is taken off the
+    normals in that pattern, and the light, k and gains are fitted again. The
+    samples are returned with the gains divided out, and the light and body
+    k replace the one-k fit's. ``axis``: the spin axis (``turn_axis``).
     """
     axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
     turn = common_turn_deg(pure.normals, pure.surface_normals, axis)
     normals = Rotation.from_rotvec(-np.radians(turn) * axis).apply(pure.normals)
     obs = pure.observations
     rotations = cloud_lib.poses_of(poses, pure.image_index)[:, :3, :3]
-    normal_cam = np.einsum("nij,nj->ni", rotations, normals[obs.point_index])
-    keep = np.einsum("ij,ij->i", normal_cam, obs.view_cam) > 0.05
-    anchored = Observations(obs.point_index[keep], normal_cam[keep], obs.view_cam[keep], obs.brightness[keep], obs.n_points)
-    image_index = pure.image_index[keep]
-    fit = fit_light_k_prior(
-        anchored, image_index, pure.refined_light_dir_cam, pure.refined_minnaert_k, relative_sd=relative_sd(anchored.brightness),
-        k_prior_sd=K_PRIOR_SD, gain_sigma=gain_sigma, n_images=n_images, min_observations=min_observations,
-    )
-    corrected = Observations(anchored.point_index, anchored.normal_cam, anchored.view_cam, anchored.brightness / fit.gains[image_index], anchored.n_points)
+
+    def fit_under(normals):
+        """The light, k and gains fitted with ``normals`` held; the samples used, with the gains divided out, and their images."""
+        normal_cam = np.einsum("nij,nj->ni", rotations, normals[obs.point_index])
+        keep = np.einsum("ij,ij->i", normal_cam, obs.view_cam) > 0.05
+        held = Observations(obs.point_index[keep], normal_cam[keep], obs.view_cam[keep], obs.brightness[keep], obs.n_points)
+        image_index = pure.image_index[keep]
+        fit = fit_light_k_prior(
+            held, image_index, pure.refined_light_dir_cam, pure.refined_minnaert_k, relative_sd=relative_sd(held.brightness),
+            k_prior_sd=K_PRIOR_SD, gain_sigma=gain_sigma, n_images=n_images, min_observations=min_observations,
+        )
+        corrected = Observations(held.point_index, held.normal_cam, held.view_cam, held.brightness / fit.gains[image_index], held.n_points)
+        return fit, corrected, keep
+
+    first, corrected, keep = fit_under(normals)
+    pattern = elevation_turn_pattern(corrected, rotations[keep] @ axis, first.light_dir_cam, first.body_k, 1.0 / relative_sd(corrected.brightness) ** 2)
+    elevation, standard_error, _ = elevation_in_turns(turns_about(normals, pure.surface_normals, axis), pattern)
+    prior = np.radians(ELEVATION_PRIOR_DEG)
+    taken_off = elevation if np.isinf(prior) else elevation * prior**2 / (prior**2 + standard_error**2)
+    normals = Rotation.from_rotvec(-(np.nan_to_num(pattern) * taken_off)[:, None] * axis).apply(normals)
+    fit, corrected, keep = fit_under(normals)
     log.info(
-        "light step under the sensor: the normals' common turn %.2f deg taken off; light %.3f deg from the one-k light, body k %.4f, "
-        "gains %.4f to %.4f (k prior %g, gain prior %g)", turn, float(angle_between_deg(fit.light_dir_cam, pure.refined_light_dir_cam)),
-        fit.body_k, float(np.min(fit.gains)), float(np.max(fit.gains)), K_PRIOR_SD, gain_sigma,
+        "light step under the sensor: the normals' common turn %.2f deg taken off; their turns show an elevation error of %.2f +- %.2f deg, "
+        "%.2f of it taken off; light %.3f deg from the one-k light (%.3f before the elevation), body k %.4f, gains %.4f to %.4f "
+        "(k prior %g, gain prior %g, elevation prior %g deg)", turn, np.degrees(elevation), np.degrees(standard_error), np.degrees(taken_off),
+        float(angle_between_deg(fit.light_dir_cam, pure.refined_light_dir_cam)), float(angle_between_deg(first.light_dir_cam, pure.refined_light_dir_cam)),
+        fit.body_k, float(np.min(fit.gains)), float(np.max(fit.gains)), K_PRIOR_SD, gain_sigma, ELEVATION_PRIOR_DEG,
     )
     return replace(
-        pure, normals=normals, observations=corrected, image_index=image_index, refined_light_dir_cam=fit.light_dir_cam,
+        pure, normals=normals, observations=corrected, image_index=pure.image_index[keep], refined_light_dir_cam=fit.light_dir_cam,
         refined_minnaert_k=fit.body_k, image_gains=fit.gains,
     )
