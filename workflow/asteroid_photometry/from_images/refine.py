@@ -491,9 +491,7 @@ K_PRIOR_SD = 0.025
 def common_turn_deg(normals, surface_normals, axis) -> float:
     """The median signed turn (deg, right-handed about ``axis``) from each surface normal to its fitted normal."""
     axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
-    fitted = normals - np.outer(normals @ axis, axis)
-    start = surface_normals - np.outer(surface_normals @ axis, axis)
-    return float(np.degrees(np.median(np.arctan2(np.cross(start, fitted) @ axis, np.einsum("ij,ij->i", start, fitted)))))
+    return float(np.degrees(np.median(turns_about(normals, surface_normals, axis))))
 
 
 #: The prior standard deviation (degrees) of the light's elevation error that :func:`anchored_light` takes
@@ -599,7 +597,7 @@ def anchored_light(pure: PureSampleCloud, poses: dict, axis, relative_sd, *, gai
     rotations = cloud_lib.poses_of(poses, pure.image_index)[:, :3, :3]
 
     def fit_under(normals):
-        """The light, k and gains fitted with ``normals`` held; the samples used, with the gains divided out, and their images."""
+        """The light, k and gains fitted with ``normals`` held; the samples used, with the gains divided out; which rows they are."""
         normal_cam = np.einsum("nij,nj->ni", rotations, normals[obs.point_index])
         keep = np.einsum("ij,ij->i", normal_cam, obs.view_cam) > 0.05
         held = Observations(obs.point_index[keep], normal_cam[keep], obs.view_cam[keep], obs.brightness[keep], obs.n_points)
