@@ -3,6 +3,7 @@ the normals' common turn (refine.common_turn_deg) and the light's elevation in t
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, light_from_tangent, Observations
 from asteroid_photometry.estimation.hierarchical import fit_light_k_prior
@@ -135,7 +136,7 @@ def test_the_light_step_takes_the_elevation_off_the_turns(monkeypatch):
     light = raised(truth["light"], axis, 2.0)
     fitted, refined = refined_under(obs, image_index, truth, light, 0.002)
     # The surface's normals: the true ones, each turned by a scatter of 3 deg about the axis.
-    surface = np.array([about_y(np.radians(3.0) * rng.standard_normal()) @ n for n in truth["normals"]])
+    surface = Rotation.from_rotvec(np.outer(np.radians(3.0) * rng.standard_normal(len(truth["normals"])), axis)).apply(truth["normals"])
     pure = refine.PureSampleCloud(
         np.zeros((len(fitted), 3)), fitted, surface, refined, image_index, np.zeros(len(fitted)), np.zeros(len(fitted)), len(fitted), light, light, 0.9,
     )
