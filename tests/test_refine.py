@@ -254,3 +254,36 @@ def test_turn_axis_holds_latitudes_only_in_the_camera_rings_plane(view_latitude_
     assert (axis is not None) == expect_axis
     if expect_axis:
         assert abs(abs(axis @ turn[:, 2]) - 1.0) < 1e-9  # the body's z, seen in the reconstruction's frame
+
+
+def test_the_residual_test_allows_the_images_calibration_scatter(faceted_ball):
+    """Under a sensor and a 2 % gain per image, a residual test that knows the gains' scatter keeps more points, and
+    the light step's gains from them come out closer to the truth than from the points a noise-only test keeps."""
+    from asteroid_photometry.from_images.purity import PurityTest
+    from asteroid_photometry.world.noise import apply_sensor_noise, sensor_from_config
+
+    vertices, triangles, normals, poses, images, surface = faceted_ball
+    sensor = sensor_from_config({"name": "amica12", "full_well_e": 30000, "read_noise_e": 20, "bit_depth": 12, "radiance_at_full_well": 1.0})
+    rng = np.random.default_rng(1)
+    gains = np.exp(0.02 * rng.standard_normal(len(images)))
+    recorded = [apply_sensor_noise(image * gain, sensor, rng) for image, gain in zip(images, gains)]
+    purity_test, axis = PurityTest(sensor), _spin_axis(poses)
+
+    def refined_under(gain_sigma):
+        pure = refine.refine_by_pure_samples(
+            surface, poses, INTRINSICS, recorded, LIGHT_CAM, albedo=0.5, minnaert_k=1.0, n_candidates=4000, min_observations=5, axis=axis,
+            purity_tolerance=purity_test, max_residual=0.002, gain_sigma=gain_sigma,
+        )
+        relative_sd = lambda brightness: np.sqrt(purity_test.sample_variance(brightness)) / brightness  # noqa: E731
+        return pure, refine.anchored_light(pure, poses, axis, relative_sd, gain_sigma=0.02, n_images=len(images), min_observations=5)
+
+    def gain_error(estimated):
+        log_ratio = np.log(estimated / gains)
+        return np.std(log_ratio - log_ratio.mean())
+
+    noise_only, noise_only_light = refined_under(0.0)
+    with_gains, with_gains_light = refined_under(0.02)
+    assert len(with_gains.points) >= 1.6 * len(noise_only.points)
+    assert gain_error(with_gains_light.image_gains) < 0.75 * gain_error(noise_only_light.image_gains) < 0.75 * np.std(np.log(gains))
+    assert abs(with_gains_light.refined_minnaert_k - MINNAERT_K) < 0.01
+    assert estimation.angle_between_deg(with_gains_light.refined_light_dir_cam, LIGHT_CAM) < 0.5

@@ -297,26 +297,59 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
         oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
     recon = read_reconstruction(reconstruction_dir)
     mission, images = read_mission(mission_dir)
-    poses = recon.body_to_camera()
     # Images with a sensor model: the statistical purity test of that sensor; noise-free ones: the relative tolerance.
     purity_test = PurityTest(sensor_from_config(mission["sensor"])) if mission.get("sensor") else settings["refine_purity_tolerance"]
     surface = cloud_lib.poisson_surface(oriented)
+    gain_sigma = float(mission.get("gain_sigma") or 0.0)
+    start = _refinement_start(oriented, surface, recon, images, settings)
+    # Under a sensor with per-image gains, in the camera ring's plane (where the light step fits the gains): two
+    # passes (refine.CALIBRATION_PASSES). The first, on a share of the candidates, only finds the gains: its residual
+    # test allows their scatter. The second runs on the images divided by them, its residual test the sensor's alone,
+    # so it keeps the points one facet explains rather than those whose fit absorbed the gains (docs/table2.md, section 7).
+    two_passes = refine.CALIBRATION_PASSES >= 2 and gain_sigma > 0 and callable(purity_test) and start[3] is not None
+    if not two_passes:
+        return _refine_pass(surface, recon, images, purity_test, settings, start, gain_sigma, residual_gain_sigma=0.0)
+    share = max(1000, round(refine.FIRST_PASS_CANDIDATE_SHARE * settings["refine_candidates"]))
+    first = _refine_pass(surface, recon, images, purity_test, dict(settings, refine_candidates=share), start, gain_sigma, residual_gain_sigma=gain_sigma)
+    corrected = [image / gain for image, gain in zip(images, first.image_gains)]
+    second = _refine_pass(
+        surface, recon, corrected, purity_test, settings, _refinement_start(oriented, surface, recon, corrected, settings), gain_sigma, residual_gain_sigma=0.0,
+    )
+    log.info(
+        "second pass on the images over the first pass's gains (%.4f to %.4f): %d points kept (first pass %d of %d candidates)",
+        float(first.image_gains.min()), float(first.image_gains.max()), len(second.points), len(first.points), first.n_candidates,
+    )
+    return replace(second, image_gains=first.image_gains * second.image_gains)
+
+
+def _refinement_start(oriented, surface, recon, images, settings: dict):
+    """Where the refinement starts: the paper's estimate on the cloud's samples of ``images``, as (light, albedo, k,
+    spin axis or None where the normals tilt freely)."""
     obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
     require_cloud_observations(obs, settings, "the cloud")
-    start = run_estimator(obs, "koizumi_lm")  # the refinement starts from the paper's estimate
+    start = run_estimator(obs, "koizumi_lm")
     fitted = np.isfinite(start.albedo) & np.isfinite(start.minnaert_k)
     albedo, minnaert_k = float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
-    axis, view_deg, light_deg = refine.turn_axis(poses, oriented.points.mean(axis=0), start.light_dir_cam)
+    axis, view_deg, light_deg = refine.turn_axis(recon.body_to_camera(), oriented.points.mean(axis=0), start.light_dir_cam)
     log.info(
         "views %.1f deg and light %.1f deg out of the camera ring's plane: normals %s", view_deg, light_deg,
         "turn about the spin axis" if axis is not None else f"tilt freely (above {refine.IN_PLANE_LIMIT_DEG:g} deg)",
     )
+    return start.light_dir_cam, albedo, minnaert_k, axis
+
+
+def _refine_pass(surface, recon, images, purity_test, settings: dict, start, gain_sigma: float, residual_gain_sigma: float) -> refine.PureSampleCloud:
+    """One refinement on ``images`` from ``start`` (:func:`_refinement_start`): the pure-sample refinement (its residual
+    test allowing ``residual_gain_sigma`` of calibration scatter) and, under a sensor in the ring's plane, the light
+    step with a gain per image (prior ``gain_sigma``)."""
+    light_dir_cam, albedo, minnaert_k, axis = start
+    poses = recon.body_to_camera()
     pure = refine.refine_by_pure_samples(
-        surface, poses, recon.intrinsics(), images, start.light_dir_cam, albedo, minnaert_k,
+        surface, poses, recon.intrinsics(), images, light_dir_cam, albedo, minnaert_k,
         n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"], offset_steps=settings["refine_offset_steps"],
         purity_tolerance=purity_test, max_residual=settings["refine_max_residual"],
         min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
-        axis=axis,
+        axis=axis, gain_sigma=residual_gain_sigma,
     )
     if pure.observations.n_obs < 10 * settings["min_observations_per_point"] or not np.all(np.isfinite(pure.refined_light_dir_cam)):
         raise DataFailure(
@@ -324,13 +357,13 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
             f"({pure.observations.n_obs} pure samples); too few to fit (more with a larger reconstruction.refine_candidates, "
             f"refine_purity_tolerance or refine_max_residual)"
         )
-    if mission.get("sensor") and axis is not None:
+    if callable(purity_test) and axis is not None:
         # Under a sensor: the normals' common turn fixed by the surface, the light with each point's k held to the
         # body's and a gain per image (refine.anchored_light; docs/table2.md, section 7).
         try:
             pure = refine.anchored_light(
                 pure, poses, axis, lambda brightness: np.sqrt(purity_test.sample_variance(brightness)) / brightness,
-                gain_sigma=float(mission.get("gain_sigma") or 0.0), n_images=len(images), min_observations=settings["min_observations_per_point"],
+                gain_sigma=gain_sigma, n_images=len(images), min_observations=settings["min_observations_per_point"],
             )
         except ValueError as error:
             raise DataFailure(f"the light step under the sensor failed: {error}") from error

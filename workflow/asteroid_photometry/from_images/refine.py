@@ -329,13 +329,14 @@ class PureSampleCloud:
             )
 
 
-def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg, axis, max_residual):
+def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k, purity_tolerance, min_observations, normal_prior_deg, axis, max_residual, gain_sigma=0.0):
     """One offset: pure samples of every candidate and the one-facet fit to them; (score, fitted normals).
 
     The score is the relative RMS residual, or with a statistical purity test
     (``purity.PurityTest``) that residual over the largest the sensor's
-    noise explains (:func:`noise_limited_residual`); a candidate is accepted
-    at a score of ``max_residual`` or less, resp. 1 or less.
+    noise explains (:func:`noise_limited_residual`, with ``max_residual`` and
+    the images' calibration scatter ``gain_sigma`` added in quadrature); a
+    candidate is accepted at a score of ``max_residual`` or less, resp. 1 or less.
     """
     statistical = callable(purity_tolerance)
     brightness, points_cam, inside = cloud_lib.sample_images(points[pair_point], pair_image, poses, intrinsics, images, purity_tolerance)
@@ -359,7 +360,7 @@ def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, 
     )
     residual = relative_residuals(p, rotations, view_cam, brightness[keep], fitted_normals, fitted_albedo, fitted_k, light_dir_cam)
     if statistical:
-        residual = residual / noise_limited_residual(p, brightness[keep], len(points), purity_tolerance, max_residual)
+        residual = residual / noise_limited_residual(p, brightness[keep], len(points), purity_tolerance, float(np.hypot(max_residual, gain_sigma)))
     residual[~active] = np.inf
     return residual, fitted_normals
 
@@ -395,6 +396,7 @@ def refine_by_pure_samples(
     surface, poses: dict, intrinsics: Intrinsics, images: list[np.ndarray], light_dir_cam, albedo: float, minnaert_k: float, *,
     n_candidates: int = 60000, max_offset_px: float = 2.0, offset_steps: int = 11, purity_tolerance=1e-3,
     max_residual: float = 1e-3, min_observations: int = 6, min_cos_emission: float = 0.2, normal_prior_deg: float = 30.0, seed: int = 0, axis=None,
+    gain_sigma: float = 0.0,
 ) -> PureSampleCloud:
     """Points on ``surface`` moved and turned until their samples are pure and one facet explains them (module docstring).
 
@@ -409,7 +411,11 @@ def refine_by_pure_samples(
     ``purity.PurityTest`` of the images' sensor; then a candidate is
     accepted when its residual is what that noise explains, with
     ``max_residual`` added for the model's own scatter
-    (:func:`noise_limited_residual`).
+    (:func:`noise_limited_residual`) and ``gain_sigma`` for the images'
+    calibration error: each of a point's samples comes from another image,
+    so an unknown gain per image of that one-sigma scatters them by as much
+    (without it, the candidates kept are those whose fit absorbed the gains,
+    and their normals and k carry them; docs/table2.md, section 7).
     """
     import open3d as o3d
 
@@ -436,7 +442,7 @@ def refine_by_pure_samples(
         shifted = points + (offset_px * footprint)[:, None] * normals
         residual, fitted_normals = _fit_candidates(
             shifted, normals, pair_point, pair_image, poses, intrinsics, images, light_dir_cam, albedo, minnaert_k,
-            purity_tolerance, min_observations, normal_prior_deg, axis, max_residual,
+            purity_tolerance, min_observations, normal_prior_deg, axis, max_residual, gain_sigma,
         )
         better = residual < best_residual
         best_residual[better], best_offset[better], best_normals[better] = residual[better], offset_px, fitted_normals[better]
@@ -482,6 +488,16 @@ def refine_by_pure_samples(
 
 
 
+#: How many times the Table 2 path refines a cloud under a sensor with per-image gains
+#: (``experiments.table2``): a second pass runs on the images divided by the first pass's gains
+#: (:func:`anchored_light`), its residual test then the sensor's alone; the first pass's residual test allows
+#: the gains' scatter (``refine_by_pure_samples``'s ``gain_sigma``). Chosen on the tuning grid (config/tuning.yaml,
+#: its `amica` rows), between 1 and 2 (docs/table2.md, section 12).
+CALIBRATION_PASSES = 2
+#: The share of ``reconstruction.refine_candidates`` the first of two passes draws: it only finds the gains, and a
+#: third of the candidates keeps the refinement's runtime within the workflow's budget (docs/table2.md, section 12).
+FIRST_PASS_CANDIDATE_SHARE = 1 / 3
+
 #: The standard deviation of the prior that holds each point's k to the body's in :func:`anchored_light`.
 #: Chosen on the tuning grid (config/tuning.yaml, its `amica` rows), among 0.0125, 0.025, 0.05, 0.1 and 0.2
 #: (docs/table2.md, section 12).
@@ -497,9 +513,11 @@ def common_turn_deg(normals, surface_normals, axis) -> float:
 #: The prior standard deviation (degrees) of the light's elevation error that :func:`anchored_light` takes
 #: off the normals' turns: the error their pattern shows is shrunk by ``prior^2 / (prior^2 + se^2)``
 #: (``se``: that measurement's standard error; 0 takes nothing off). Chosen on the tuning grid
-#: (config/tuning.yaml, its `amica` rows), among 0, 0.25, 0.5, 1, 2 and none (no shrinking)
+#: (config/tuning.yaml, its `amica` rows): among 0, 0.25, 0.5, 1, 2 and none (no shrinking) with one
+#: refinement pass (0.25 and 0.5 tied), then among 0, 0.25 and 0.5 with the two passes of
+#: :data:`CALIBRATION_PASSES`, whose many more points measure the pattern with a far smaller ``se``
 #: (docs/table2.md, section 12).
-ELEVATION_PRIOR_DEG = 0.5
+ELEVATION_PRIOR_DEG = 0.25
 
 
 def elevation_turn_pattern(obs: Observations, axis_cam, light_dir_cam, minnaert_k: float, weights) -> np.ndarray:
