@@ -305,7 +305,7 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
     # Under a sensor with per-image gains, in the camera ring's plane (where the light step fits the gains): two
     # passes (refine.CALIBRATION_PASSES). The first, on a share of the candidates, only finds the gains: its residual
     # test allows their scatter. The second runs on the images divided by them, its residual test the sensor's alone,
-    # so it keeps the points one facet explains rather than those whose fit absorbed the gains (docs/table2.md, section 7).
+    # so it keeps the points one facet explains rather than those whose fit absorbed the gains (docs/table2.md, section 6).
     two_passes = refine.CALIBRATION_PASSES >= 2 and gain_sigma > 0 and callable(purity_test) and start[3] is not None
     if not two_passes:
         return _refine_pass(surface, recon, images, purity_test, settings, start, gain_sigma, residual_gain_sigma=0.0)

@@ -415,7 +415,7 @@ def refine_by_pure_samples(
     calibration error: each of a point's samples comes from another image,
     so an unknown gain per image of that one-sigma scatters them by as much
     (without it, the candidates kept are those whose fit absorbed the gains,
-    and their normals and k carry them; docs/table2.md, section 7).
+    and their normals and k carry them; docs/table2.md, sections 6 and 11).
     """
     import open3d as o3d
 
