@@ -287,3 +287,54 @@ def test_the_residual_test_allows_the_images_calibration_scatter(faceted_ball):
     assert gain_error(with_gains_light.image_gains) < 0.75 * gain_error(noise_only_light.image_gains) < 0.75 * np.std(np.log(gains))
     assert abs(with_gains_light.refined_minnaert_k - MINNAERT_K) < 0.01
     assert estimation.angle_between_deg(with_gains_light.refined_light_dir_cam, LIGHT_CAM) < 0.5
+
+
+def test_the_second_pass_keeps_the_first_passs_axis_when_its_restart_leaves_the_plane(tmp_path, monkeypatch):
+    """Under a sensor with gains the refinement runs twice; the cloud's estimate taken again on the gain-corrected
+    images can put the light out of the ring's plane. The second pass must still turn the normals about the spin
+    axis, whose light step fits the gains the result records: the axis is the first pass's, not decided again."""
+    from dataclasses import dataclass
+
+    from asteroid_photometry.experiments import table2
+
+    @dataclass(frozen=True)
+    class Passed:
+        points: np.ndarray
+        n_candidates: int
+        image_gains: np.ndarray | None
+
+    spin = np.array([0.0, 1.0, 0.0])
+    lights = iter([np.array([0.0, 0.0, 1.0]), np.array([0.0, np.sin(0.21), np.cos(0.21)])])  # the restart: 12 deg out of the plane
+    starts = []
+
+    class Recon:
+        def body_to_camera(self):
+            return {}
+
+    def estimate(obs, method, **kwargs):
+        return estimation.FitResult(method, next(lights), np.array([0.5]), np.array([0.8]), 1, 40, 0.0, 1, 1, True, "", 0.0)
+
+    def turn_axis(poses, centre, light_dir_cam):
+        return (spin if abs(light_dir_cam[1]) < np.sin(np.radians(refine.IN_PLANE_LIMIT_DEG)) else None), 0.0, 0.0
+
+    def refine_pass(surface, recon, images, purity_test, settings, start, gain_sigma, residual_gain_sigma):
+        starts.append(start)
+        return Passed(np.zeros((3, 3)), settings["refine_candidates"], np.full(len(images), 1.01) if start[3] is not None else None)
+
+    np.savez(tmp_path / "registration.npz", points=np.zeros((3, 3)), normals=np.eye(3), track_length=np.ones(3))
+    monkeypatch.setattr(table2, "read_reconstruction", lambda path: Recon())
+    monkeypatch.setattr(table2, "read_mission", lambda path: ({"sensor": {"name": "amica12"}, "gain_sigma": 0.02}, [np.ones((4, 4))] * 3))
+    monkeypatch.setattr(table2, "sensor_from_config", lambda config: None)
+    monkeypatch.setattr(table2, "PurityTest", lambda sensor: (lambda *args: True))
+    monkeypatch.setattr(table2.cloud_lib, "poisson_surface", lambda oriented: None)
+    unit = np.tile([0.0, 0.0, 1.0], (40, 1))
+    monkeypatch.setattr(table2, "cloud_observations_of", lambda *args: (estimation.Observations(np.zeros(40, int), unit, unit, np.ones(40), 1), None))
+    monkeypatch.setattr(table2, "run_estimator", estimate)
+    monkeypatch.setattr(table2.refine, "turn_axis", turn_axis)
+    monkeypatch.setattr(table2, "_refine_pass", refine_pass)
+
+    pure = table2._refine(tmp_path / "registration.npz", tmp_path, tmp_path, {"refine_candidates": 3000, "min_observations_per_point": 4})
+    assert len(starts) == 2
+    assert starts[1][0][1] > 0.2  # the second pass did start from the restart's light
+    assert starts[1][3] is not None and np.allclose(starts[1][3], spin)
+    np.testing.assert_allclose(pure.image_gains, 1.01**2)
