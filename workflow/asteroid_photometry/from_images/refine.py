@@ -500,6 +500,7 @@ FIRST_PASS_CANDIDATE_SHARE = 1 / 3
 
 #: The standard deviation of the prior that holds each point's k to the body's in :func:`anchored_light`.
 #: Chosen on the tuning grid (config/tuning.yaml, its `amica` rows), among 0.0125, 0.025, 0.05, 0.1 and 0.2
+#: with one refinement pass, and checked again against 0.0125 and 0.05 with :data:`CALIBRATION_PASSES`
 #: (docs/table2.md, section 12).
 K_PRIOR_SD = 0.025
 
