@@ -158,3 +158,14 @@ def test_every_number_the_readme_quotes_is_in_the_committed_summary():
                 f"README.md quotes {value} ({row[0]}), which docs/results/summary.md's headlines do not have"
             )
     assert quoted >= 5
+
+
+def test_the_readme_names_the_commit_of_the_committed_summary():
+    """The README says which commit its quoted run came from; a new summary without the README following is stale."""
+    summary = (REPO / "docs" / "results" / "summary.md").read_text()
+    commit = re.search(r"Commit: `([0-9a-f]{7,40})", summary)
+    assert commit, "docs/results/summary.md names no commit"
+    section = (REPO / "README.md").read_text().split("## What comes out", 1)[1].split("\n## ", 1)[0]
+    named = re.findall(r"config it came\s+from: ([0-9a-f]{7,40})\)", section)
+    assert named, "README.md's 'What comes out' names no commit for the run it quotes"
+    assert commit.group(1).startswith(named[0]), f"README.md names {named[0]}, docs/results/summary.md is of {commit.group(1)[:7]}"
