@@ -291,10 +291,6 @@ def refine_stage(registration_npz, reconstruction_dir, mission_dir, settings: di
     log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
 
 
-#: ``_refinement_start``'s default: decide the axis from the estimate's light.
-_DECIDE = object()
-
-
 def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -> refine.PureSampleCloud:
     with np.load(registration_npz) as data:
         check_npz(data, registration_npz)
@@ -319,7 +315,7 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
     # The cloud's estimate taken again on the corrected images; the axis the normals turn about stays the first
     # pass's: the second pass exists to refine under the first's gains, which only its light step in the ring's
     # plane fits (a restart whose light leaves the plane would drop that step and its gains).
-    restart = _refinement_start(oriented, surface, recon, corrected, settings, axis=start[3])
+    restart = (*_cloud_estimate(oriented, surface, recon, corrected, settings), start[3])
     second = _refine_pass(surface, recon, corrected, purity_test, settings, restart, gain_sigma, residual_gain_sigma=0.0)
     log.info(
         "second pass on the images over the first pass's gains (%.4f to %.4f): %d points kept (first pass %d of %d candidates)",
@@ -328,23 +324,25 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
     return replace(second, image_gains=first.image_gains * second.image_gains)
 
 
-def _refinement_start(oriented, surface, recon, images, settings: dict, axis=_DECIDE):
-    """Where the refinement starts: the paper's estimate on the cloud's samples of ``images``, as (light, albedo, k,
-    spin axis or None where the normals tilt freely). ``axis``: that axis as already decided (by an earlier pass),
-    instead of deciding it from this estimate's light (``refine.turn_axis``)."""
+def _cloud_estimate(oriented, surface, recon, images, settings: dict):
+    """The paper's estimate on the cloud's samples of ``images``: (light, median albedo, median k)."""
     obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
     require_cloud_observations(obs, settings, "the cloud")
     start = run_estimator(obs, "koizumi_lm")
     fitted = np.isfinite(start.albedo) & np.isfinite(start.minnaert_k)
-    albedo, minnaert_k = float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
-    if axis is not _DECIDE:
-        return start.light_dir_cam, albedo, minnaert_k, axis
-    axis, view_deg, light_deg = refine.turn_axis(recon.body_to_camera(), oriented.points.mean(axis=0), start.light_dir_cam)
+    return start.light_dir_cam, float(np.median(start.albedo[fitted])), float(np.median(start.minnaert_k[fitted]))
+
+
+def _refinement_start(oriented, surface, recon, images, settings: dict):
+    """Where the refinement starts: :func:`_cloud_estimate` and the axis it decides, as (light, albedo, k, spin axis
+    or None where the normals tilt freely)."""
+    light_dir_cam, albedo, minnaert_k = _cloud_estimate(oriented, surface, recon, images, settings)
+    axis, view_deg, light_deg = refine.turn_axis(recon.body_to_camera(), oriented.points.mean(axis=0), light_dir_cam)
     log.info(
         "views %.1f deg and light %.1f deg out of the camera ring's plane: normals %s", view_deg, light_deg,
         "turn about the spin axis" if axis is not None else f"tilt freely (above {refine.IN_PLANE_LIMIT_DEG:g} deg)",
     )
-    return start.light_dir_cam, albedo, minnaert_k, axis
+    return light_dir_cam, albedo, minnaert_k, axis
 
 
 def _refine_pass(surface, recon, images, purity_test, settings: dict, start, gain_sigma: float, residual_gain_sigma: float) -> refine.PureSampleCloud:
