@@ -407,3 +407,32 @@ def test_the_final_fit_sees_only_what_the_refinements_light_lights():
     assert set(np.unique(kept.point_index)) == set(np.flatnonzero(np.bincount(kept.point_index, minlength=obs.n_points) >= 6))
     np.testing.assert_array_equal(kept.brightness, obs.brightness[expected_rows])
     assert lit_samples(obs, light, 0.0, 1).n_obs == obs.n_obs
+
+
+def test_where_the_normals_tilted_freely_the_final_fit_keeps_the_well_lit_points():
+    """table2.well_lit_points drops whole points by their rows' mean incidence cosine; final_observations applies it
+    only to a refined cloud whose normals tilted freely."""
+    from types import SimpleNamespace
+
+    from asteroid_photometry.estimation import synthetic_observations
+    from asteroid_photometry.experiments import table2
+    from synthetic_helpers import light_at
+
+    light = light_at(20.0)
+    obs = synthetic_observations(60, 8, light, 0.5, 0.8, np.random.default_rng(6))
+    cos_i = obs.cos_incidence(light)
+    mean_cos = np.bincount(obs.point_index, weights=cos_i, minlength=obs.n_points) / np.bincount(obs.point_index, minlength=obs.n_points)
+    cut = float(np.median(mean_cos))
+    kept = table2.well_lit_points(obs, light, cut)
+    # Every row of a point above the cut stays, its rows below the cut included; a point below it loses all.
+    np.testing.assert_array_equal(kept.brightness, obs.brightness[mean_cos[obs.point_index] >= cut])
+    assert kept.n_points == obs.n_points and 0 < kept.n_obs < obs.n_obs and np.any(kept.cos_incidence(light) < cut)
+
+    settings = {"min_observations_per_point": 4}
+    about_axis = SimpleNamespace(observations=obs, refined_light_dir_cam=light, normals_tilt_freely=False)
+    lit = table2.final_observations(SimpleNamespace(pure=about_axis), settings)
+    assert lit.n_obs == table2.lit_samples(obs, light, table2.FINAL_MIN_COS_INCIDENCE, 4).n_obs
+    free = table2.final_observations(SimpleNamespace(pure=SimpleNamespace(**{**vars(about_axis), "normals_tilt_freely": True})), settings)
+    expected = table2.well_lit_points(lit, light, table2.FREE_TILT_MIN_MEAN_COS_INCIDENCE)
+    np.testing.assert_array_equal(free.brightness, expected.brightness)
+    assert 0 < free.n_obs < lit.n_obs

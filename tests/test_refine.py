@@ -6,6 +6,8 @@ refinement starts from a smooth sphere through it: the situation of a
 Poisson surface over a faceted asteroid, at a size a test can afford.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -175,7 +177,7 @@ def test_with_normals_free_to_tilt_one_albedo_for_the_body_pulls_the_elevation_b
     for elevation, azimuth in ((2.0, 10.0), (0.0, 12.0)):
         start = _light_at(elevation, azimuth)
         pure = refine.refine_by_pure_samples(surface, poses, INTRINSICS, images, start, albedo=0.5, minnaert_k=1.0, n_candidates=4000, min_observations=5)
-        assert len(pure.points) >= 100
+        assert len(pure.points) >= 100 and pure.normals_tilt_freely
         one_albedo_error = estimation.angle_between_deg(pure.refined_light_dir_cam, LIGHT_CAM)
         per_point = estimation.fit_pooled_k(pure.observations, start, 1.0, min_observations=5)
         if elevation:
@@ -220,6 +222,10 @@ def test_refined_cloud_round_trips_through_its_file(refined, tmp_path):
     np.testing.assert_array_equal(again.refined_light_dir_cam, refined.refined_light_dir_cam)
     assert again.refined_minnaert_k == refined.refined_minnaert_k
     assert again.n_candidates == refined.n_candidates and again.observations.n_points == len(refined.points)
+    # Whether the normals tilted freely (the final fit's cut depends on it): False about an axis, kept either way.
+    assert not refined.normals_tilt_freely and not again.normals_tilt_freely
+    replace(refined, normals_tilt_freely=True).save(tmp_path / "free.npz")
+    assert refine.PureSampleCloud.load(tmp_path / "free.npz").normals_tilt_freely
 
 
 @pytest.mark.parametrize(

@@ -562,10 +562,33 @@ def lit_samples(observations: estimation.Observations, light_dir_cam, min_cos_in
     return observations.rows(keep)
 
 
+#: Where the refinement's normals tilted freely (``PureSampleCloud.normals_tilt_freely``: the `oblique` condition), the
+#: final fit keeps only the points its light lights at a mean incidence cosine of at least this (60 degrees). Each such
+#: normal was fitted about both axes under the light the refinement started from, degrees off, and its error passes
+#: into the point's albedo amplified by the tangent of the incidence: points lit only near the terminator came out
+#: 0.06 to 0.11 too bright, and their tail was most of the body's albedo error. Chosen on config/conditions_geometry.yaml's
+#: two `oblique` sets (albedo 0.6, not among the paper's), among 0.3 to 0.6; in the ring's plane (normals turning
+#: about the spin axis) the same cut costs k on the tuning grid, so there it is not applied (docs/table2.md, section 0).
+FREE_TILT_MIN_MEAN_COS_INCIDENCE = 0.5
+
+
+def well_lit_points(observations: estimation.Observations, light_dir_cam, min_mean_cos_incidence: float) -> estimation.Observations:
+    """The rows of the points whose rows ``light_dir_cam`` lights at a mean incidence cosine of at least
+    ``min_mean_cos_incidence``; the other points lose all their rows, the points' numbering is kept."""
+    per_point = np.bincount(observations.point_index, minlength=observations.n_points)
+    mean_cos = np.bincount(observations.point_index, weights=observations.cos_incidence(light_dir_cam), minlength=observations.n_points)
+    mean_cos = mean_cos / np.maximum(per_point, 1)
+    return observations.rows(mean_cos[observations.point_index] >= min_mean_cos_incidence)
+
+
 def final_observations(stage: CloudStage, settings: dict) -> estimation.Observations:
-    """The refined cloud's pure samples that the final fit under the refinement's light uses (:data:`FINAL_MIN_COS_INCIDENCE`)."""
+    """The refined cloud's pure samples that the final fit under the refinement's light uses (:data:`FINAL_MIN_COS_INCIDENCE`;
+    where its normals tilted freely, :data:`FREE_TILT_MIN_MEAN_COS_INCIDENCE` too)."""
     pure = stage.pure
-    return lit_samples(pure.observations, pure.refined_light_dir_cam, FINAL_MIN_COS_INCIDENCE, settings["min_observations_per_point"])
+    lit = lit_samples(pure.observations, pure.refined_light_dir_cam, FINAL_MIN_COS_INCIDENCE, settings["min_observations_per_point"])
+    if pure.normals_tilt_freely:
+        lit = well_lit_points(lit, pure.refined_light_dir_cam, FREE_TILT_MIN_MEAN_COS_INCIDENCE)
+    return lit
 
 
 def estimate_after_refinement(stage: CloudStage, method: str, known_k: float, final_obs: estimation.Observations) -> tuple[estimation.FitResult, estimation.FitResult, float]:

@@ -303,6 +303,7 @@ class PureSampleCloud:
     refined_light_dir_cam: np.ndarray  # the light fitted to the pure samples: one k for the body (fit_pooled_k), or anchored_light's
     refined_minnaert_k: float  # that fit's k for the body
     image_gains: np.ndarray | None = None  # per image, the calibration gains the light step divided out (anchored_light); None: none
+    normals_tilt_freely: bool = False  # the normals were fitted about both axes (no spin axis: views or light out of the ring's plane)
 
     def save(self, path) -> None:
         """One .npz with the arrays."""
@@ -311,7 +312,7 @@ class PureSampleCloud:
             path, points=self.points, normals=self.normals, surface_normals=self.surface_normals, point_index=obs.point_index,
             normal_cam=obs.normal_cam, view_cam=obs.view_cam, brightness=obs.brightness, image_index=self.image_index,
             offset_px=self.offset_px, residual=self.residual, n_candidates=self.n_candidates, light_dir_cam=self.light_dir_cam,
-            refined_light_dir_cam=self.refined_light_dir_cam, refined_minnaert_k=self.refined_minnaert_k,
+            refined_light_dir_cam=self.refined_light_dir_cam, refined_minnaert_k=self.refined_minnaert_k, normals_tilt_freely=self.normals_tilt_freely,
             **({} if self.image_gains is None else {"image_gains": self.image_gains}),
         )
 
@@ -325,7 +326,7 @@ class PureSampleCloud:
             return cls(
                 data["points"], data["normals"], data["surface_normals"], observations, data["image_index"], data["offset_px"], data["residual"],
                 int(data["n_candidates"]), data["light_dir_cam"], data["refined_light_dir_cam"], float(data["refined_minnaert_k"]),
-                data["image_gains"] if "image_gains" in data.files else None,
+                data["image_gains"] if "image_gains" in data.files else None, bool(data["normals_tilt_freely"]),
             )
 
 
@@ -483,7 +484,7 @@ def refine_by_pure_samples(
         )
     return PureSampleCloud(
         points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points),
-        np.asarray(light_dir_cam, dtype=float), refined_light, refined_k,
+        np.asarray(light_dir_cam, dtype=float), refined_light, refined_k, normals_tilt_freely=axis is None,
     )
 
 
