@@ -145,6 +145,26 @@ def _light_at(elevation_deg, azimuth_deg):
     return np.array([np.sin(azimuth) * np.cos(elevation), np.sin(elevation), -np.cos(azimuth) * np.cos(elevation)])
 
 
+def _elevation_azimuth_deg(light, axis):
+    """The light's elevation out of the plane normal to ``axis`` and its azimuth in it (deg, from an arbitrary origin)."""
+    helper = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    helper /= np.linalg.norm(helper)
+    return np.degrees(np.arcsin(light @ axis)), np.degrees(np.arctan2(light @ np.cross(axis, helper), light @ helper))
+
+
+def test_keep_azimuth_takes_the_elevation_of_one_light_and_the_azimuth_of_another():
+    axis = np.array([0.0, 1.0, 0.0])
+    light, source = _light_at(3.0, 10.0), _light_at(-7.0, 14.0)
+    kept = refine.keep_azimuth(light, source, -axis)  # the axis's sign does not matter
+    assert np.isclose(np.linalg.norm(kept), 1.0)
+    np.testing.assert_allclose(kept, _light_at(3.0, 14.0), atol=1e-12)
+
+
+def test_the_ring_axis_in_the_cameras_frame_is_their_down_axis_on_an_equatorial_ring():
+    axis_cam = refine.ring_axis_cam(_equatorial_poses())
+    assert np.isclose(abs(axis_cam[1]), 1.0, atol=1e-9)
+
+
 def test_refinement_keeps_the_azimuth_it_is_given_and_one_k_pulls_the_elevation_back(faceted_ball):
     # Normals fitted to the brightness under a light 1 deg off explain it as well as the true ones do
     # (a common turn of normals and light, and a latitude the albedo absorbs): the paper's joint fit
@@ -186,6 +206,12 @@ def test_with_normals_free_to_tilt_one_albedo_for_the_body_pulls_the_elevation_b
         else:
             assert 1.8 < one_albedo_error < 2.2
         assert abs(pure.refined_minnaert_k - MINNAERT_K) < 5e-3
+        # The light is one albedo's elevation at the start's azimuth about the spin axis (refine.keep_azimuth).
+        axis_cam = refine.ring_axis_cam(poses)
+        one = estimation.fit_pooled_k(refine.one_albedo(pure.observations), start, 1.0, min_observations=1).light_dir_cam
+        refined, started, by_one = (_elevation_azimuth_deg(light, axis_cam) for light in (pure.refined_light_dir_cam, start, one))
+        assert abs(refined[0] - by_one[0]) < 1e-6 and abs(refined[1] - started[1]) < 1e-6
+        assert abs(by_one[1] - started[1]) > 1e-4  # one albedo alone moves the azimuth, if only a little here
     assert refine.one_albedo(pure.observations).n_points == 1 and refine.one_albedo(pure.observations).n_obs == pure.observations.n_obs
 
 

@@ -61,7 +61,12 @@ albedo for the whole body (:func:`one_albedo`): the light is what makes
 points of different normals differ in brightness, and an albedo that varies
 over the body, unrelated to the normals' direction, is scatter to that
 comparison. On `oblique` it brings the light to 0.3 to 1.5 deg; the
-per-point albedo and k are then fitted under it as before. In the ring's
+per-point albedo and k are then fitted under it as before. What one albedo
+pins is the elevation; where the albedo varies over the body it also moves
+the azimuth, which the start held (on config/conditions_geometry.yaml's
+`oblique` rows from 0.2 to 0.7 deg off to 1.7 to 1.9), so the light step's
+light keeps the start's azimuth about the spin axis and takes its elevation
+from one albedo (:func:`keep_azimuth`). In the ring's
 plane the normals turn about the spin axis only and step 4 keeps an albedo
 per point: there one albedo for the body puts the light 0.5 to 7.9 deg off
 on the `amica` sets, where per-point albedo gives 0.25 to 3.1.
@@ -109,6 +114,25 @@ def spin_axis(camera_centres) -> np.ndarray:
     centres = np.asarray(camera_centres, dtype=float)
     _, _, vt = np.linalg.svd(centres - centres.mean(axis=0))
     return vt[2]
+
+
+def ring_axis_cam(body_to_camera: dict) -> np.ndarray:
+    """The spin axis (:func:`spin_axis`) in the cameras' frame: the mean over the images (one direction for a ring of views)."""
+    poses = np.array(list(body_to_camera.values()))
+    axis = spin_axis(camera_centres_body(poses))
+    in_cameras = poses[:, :3, :3] @ axis
+    mean = in_cameras.mean(axis=0)
+    return mean / np.linalg.norm(mean)
+
+
+def keep_azimuth(light_dir_cam, azimuth_from, axis_cam) -> np.ndarray:
+    """``light_dir_cam``'s elevation out of the plane normal to ``axis_cam``, turned to ``azimuth_from``'s azimuth in that plane (unit)."""
+    axis = np.asarray(axis_cam, dtype=float) / np.linalg.norm(axis_cam)
+    light = np.asarray(light_dir_cam, dtype=float) / np.linalg.norm(light_dir_cam)
+    elevation = np.arcsin(np.clip(light @ axis, -1.0, 1.0))
+    source = np.asarray(azimuth_from, dtype=float)
+    in_plane = source - (source @ axis) * axis
+    return np.cos(elevation) * in_plane / np.linalg.norm(in_plane) + np.sin(elevation) * axis
 
 
 #: Above this angle (deg) of the views or of the light out of the plane of the camera ring, a normal's latitude
@@ -478,9 +502,12 @@ def refine_by_pure_samples(
         light_samples = observations if axis is not None else one_albedo(observations)
         pooled = fit_pooled_k(light_samples, light_dir_cam, minnaert_k, min_observations=min_observations if axis is not None else 1)
         refined_light, refined_k = pooled.light_dir_cam, float(np.nanmedian(pooled.minnaert_k))
+        if axis is None:  # one albedo pins the elevation; the azimuth stays the start's (module docstring)
+            refined_light = keep_azimuth(refined_light, light_dir_cam, ring_axis_cam(poses))
         log.info(
-            "light from the pure samples with one k (%.4f)%s: %.3f deg from the light the normals were fitted under", refined_k,
+            "light from the pure samples with one k (%.4f)%s: %.3f deg from the light the normals were fitted under%s", refined_k,
             "" if axis is not None else " and one albedo (normals free to tilt)", float(angle_between_deg(refined_light, light_dir_cam)),
+            "" if axis is not None else f" (its elevation; the azimuth kept, {float(angle_between_deg(pooled.light_dir_cam, refined_light)):.3f} deg from one albedo's)",
         )
     return PureSampleCloud(
         points, normals, surface_normals, observations, image_index[keep], best_offset[accepted], best_residual[accepted], len(candidates.points),
