@@ -160,6 +160,24 @@ def test_keep_azimuth_takes_the_elevation_of_one_light_and_the_azimuth_of_anothe
     np.testing.assert_allclose(kept, _light_at(3.0, 14.0), atol=1e-12)
 
 
+def test_refinement_runs_again_until_its_light_settles():
+    """refine.refine_until_settled: a pass again while the light step moved the light at least the tolerance, up to the maximum."""
+    from types import SimpleNamespace
+
+    moves = [2.0, 0.9, 0.1, 0.05]  # how far each pass's light step moves the light (deg)
+
+    def pass_number(number):
+        return SimpleNamespace(light_dir_cam=_light_at(0.0, 0.0), refined_light_dir_cam=_light_at(moves[number - 1], 0.0), points=np.zeros((5, 3)), number=number)
+
+    def again(last):
+        return pass_number(last.number + 1)
+
+    assert refine.refine_until_settled(pass_number(1), again, 4, 0.25).number == 3  # stops once a pass moved it less than 0.25
+    assert refine.refine_until_settled(pass_number(1), again, 2, 0.25).number == 2  # or at the maximum
+    assert refine.refine_until_settled(pass_number(1), again, 4, 3.0).number == 1
+    assert refine.refine_until_settled(pass_number(1), again, 1, 0.0).number == 1
+
+
 def test_the_ring_axis_in_the_cameras_frame_is_their_down_axis_on_an_equatorial_ring():
     axis_cam = refine.ring_axis_cam(_equatorial_poses())
     assert np.isclose(abs(axis_cam[1]), 1.0, atol=1e-9)

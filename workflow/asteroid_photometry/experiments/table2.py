@@ -308,7 +308,16 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
     # so it keeps the points one facet explains rather than those whose fit absorbed the gains (docs/table2.md, section 6).
     two_passes = refine.CALIBRATION_PASSES >= 2 and gain_sigma > 0 and callable(purity_test) and start[3] is not None
     if not two_passes:
-        return _refine_pass(surface, recon, images, purity_test, settings, start, gain_sigma, residual_gain_sigma=0.0)
+        pure = _refine_pass(surface, recon, images, purity_test, settings, start, gain_sigma, residual_gain_sigma=0.0)
+        # With the normals free to tilt, each pass's normals follow the light they were fitted under and its light step
+        # takes part of that light's elevation error off: again from the step's light until it settles
+        # (refine.FREE_TILT_PASSES, refine.FREE_TILT_SETTLED_DEG; docs/table2.md, section 0).
+        if start[3] is None:
+            pure = refine.refine_until_settled(
+                pure, lambda last: _refine_pass(surface, recon, images, purity_test, settings, (last.refined_light_dir_cam, start[1], last.refined_minnaert_k, None), gain_sigma, residual_gain_sigma=0.0),
+                refine.FREE_TILT_PASSES, refine.FREE_TILT_SETTLED_DEG,
+            )
+        return pure
     share = max(1000, round(refine.FIRST_PASS_CANDIDATE_SHARE * settings["refine_candidates"]))
     first = _refine_pass(surface, recon, images, purity_test, dict(settings, refine_candidates=share), start, gain_sigma, residual_gain_sigma=gain_sigma)
     corrected = [image / gain for image, gain in zip(images, first.image_gains)]

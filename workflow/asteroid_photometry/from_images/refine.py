@@ -522,6 +522,29 @@ def refine_by_pure_samples(
 #: the gains' scatter (``refine_by_pure_samples``'s ``gain_sigma``). Chosen on the tuning grid (config/tuning.yaml,
 #: its `amica` rows), between 1 and 2 (docs/table2.md, section 12).
 CALIBRATION_PASSES = 2
+#: Where the normals tilt freely (no spin axis to turn about; the `oblique` condition) the refinement runs again from
+#: its light step's light, up to this many passes in all, until that light is within :data:`FREE_TILT_SETTLED_DEG` of
+#: the light the pass's normals were fitted under. Each pass's normals follow the light they were fitted under, and
+#: the one-albedo step takes part of its elevation error off (a third to nine tenths of it in the first pass). Chosen on
+#: config/conditions_geometry.yaml's four `oblique` rows (albedo 0.6; none of the paper's sets): 1, 2, 3 and 4 passes
+#: put 1, 2, 3 and 3 of them within all bounds (docs/table2.md, section 12).
+FREE_TILT_PASSES = 4
+#: See :data:`FREE_TILT_PASSES`: on those rows the light moved 0.02 to 0.04 deg in a third pass where it had settled
+#: and 0.4 where it had not; any value from 0.05 to 0.34 deg stops the same passes there.
+FREE_TILT_SETTLED_DEG = 0.25
+def refine_until_settled(pure: PureSampleCloud, again, max_passes: int, settled_deg: float) -> PureSampleCloud:
+    """``pure`` refined once more (``again(pure)``, a new pass from its light step's light) while that step moved the
+    light at least ``settled_deg`` from the light the pass's normals were fitted under, up to ``max_passes`` passes in
+    all (``pure`` being the first)."""
+    for passes in range(2, max_passes + 1):
+        moved = float(angle_between_deg(pure.refined_light_dir_cam, pure.light_dir_cam))
+        if moved < settled_deg:
+            break
+        pure = again(pure)
+        log.info("pass %d from the previous light step's light (it had moved the light %.3f deg): %d points kept", passes, moved, len(pure.points))
+    return pure
+
+
 #: The share of ``reconstruction.refine_candidates`` the first of two passes draws: it only finds the gains, and a
 #: third of the candidates keeps the refinement's runtime within the workflow's budget (docs/table2.md, section 12).
 FIRST_PASS_CANDIDATE_SHARE = 1 / 3
