@@ -66,8 +66,10 @@ pins is the elevation; where the albedo varies over the body it also moves
 the azimuth, which the start held (on config/conditions_geometry.yaml's
 `oblique` rows from 0.2 to 0.7 deg off to 1.7 to 1.9), so the light step's
 light keeps the start's azimuth about the spin axis and takes its elevation
-from one albedo (:func:`keep_azimuth`). In the ring's
-plane the normals turn about the spin axis only and step 4 keeps an albedo
+from one albedo (:func:`keep_azimuth`). And each pass's normals follow the
+light they were fitted under, so the step takes only part of its elevation
+error off: the refinement runs again from the step's light until it settles
+(:func:`refine_until_settled`). In the ring's plane the normals turn about the spin axis only and step 4 keeps an albedo
 per point: there one albedo for the body puts the light 0.5 to 7.9 deg off
 on the `amica` sets, where per-point albedo gives 0.25 to 3.1.
 """
