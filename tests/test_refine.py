@@ -270,6 +270,11 @@ def test_refined_cloud_round_trips_through_its_file(refined, tmp_path):
     assert not refined.normals_tilt_freely and not again.normals_tilt_freely
     replace(refined, normals_tilt_freely=True).save(tmp_path / "free.npz")
     assert refine.PureSampleCloud.load(tmp_path / "free.npz").normals_tilt_freely
+    # A file from before the flag was written says so, and how to make it again, instead of a KeyError.
+    with np.load(tmp_path / "refined.npz") as data:
+        np.savez(tmp_path / "older.npz", **{name: data[name] for name in data.files if name != "normals_tilt_freely"})
+    with pytest.raises(ValueError, match="older version.*--forcerun refine_cloud"):
+        refine.PureSampleCloud.load(tmp_path / "older.npz")
 
 
 @pytest.mark.parametrize(

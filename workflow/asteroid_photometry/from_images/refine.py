@@ -69,9 +69,10 @@ light keeps the start's azimuth about the spin axis and takes its elevation
 from one albedo (:func:`keep_azimuth`). And each pass's normals follow the
 light they were fitted under, so the step takes only part of its elevation
 error off: the refinement runs again from the step's light until it settles
-(:func:`refine_until_settled`). In the ring's plane the normals turn about the spin axis only and step 4 keeps an albedo
-per point: there one albedo for the body puts the light 0.5 to 7.9 deg off
-on the `amica` sets, where per-point albedo gives 0.25 to 3.1.
+(:func:`refine_until_settled`). In the ring's plane the normals turn about
+the spin axis only and step 4 keeps an albedo per point: there one albedo
+for the body puts the light 0.5 to 7.9 deg off on the `amica` sets, where
+per-point albedo gives 0.25 to 3.1.
 """
 
 from __future__ import annotations
@@ -345,6 +346,11 @@ class PureSampleCloud:
     @classmethod
     def load(cls, path) -> "PureSampleCloud":
         with np.load(path) as data:
+            if "normals_tilt_freely" not in data.files:
+                raise ValueError(
+                    f"{path}: a refined cloud written by an older version of the workflow (it does not say whether its normals "
+                    "tilted freely); refine it again: snakemake --forcerun refine_cloud"
+                )
             observations = Observations(
                 point_index=data["point_index"], normal_cam=data["normal_cam"], view_cam=data["view_cam"], brightness=data["brightness"],
                 n_points=len(data["points"]),
@@ -534,17 +540,6 @@ FREE_TILT_PASSES = 4
 #: See :data:`FREE_TILT_PASSES`: on those rows the light moved 0.02 to 0.04 deg in a third pass where it had settled
 #: and 0.4 where it had not; any value from 0.05 to 0.34 deg stops the same passes there.
 FREE_TILT_SETTLED_DEG = 0.25
-def refine_until_settled(pure: PureSampleCloud, again, max_passes: int, settled_deg: float) -> PureSampleCloud:
-    """``pure`` refined once more (``again(pure)``, a new pass from its light step's light) while that step moved the
-    light at least ``settled_deg`` from the light the pass's normals were fitted under, up to ``max_passes`` passes in
-    all (``pure`` being the first)."""
-    for passes in range(2, max_passes + 1):
-        moved = float(angle_between_deg(pure.refined_light_dir_cam, pure.light_dir_cam))
-        if moved < settled_deg:
-            break
-        pure = again(pure)
-        log.info("pass %d from the previous light step's light (it had moved the light %.3f deg): %d points kept", passes, moved, len(pure.points))
-    return pure
 
 
 #: The share of ``reconstruction.refine_candidates`` the first of two passes draws: it only finds the gains, and a
@@ -556,6 +551,19 @@ FIRST_PASS_CANDIDATE_SHARE = 1 / 3
 #: with one refinement pass, and checked again against 0.0125 and 0.05 with :data:`CALIBRATION_PASSES`
 #: (docs/table2.md, section 12).
 K_PRIOR_SD = 0.025
+
+
+def refine_until_settled(pure: PureSampleCloud, again, max_passes: int, settled_deg: float) -> PureSampleCloud:
+    """``pure`` refined once more (``again(pure)``, a new pass from its light step's light) while that step moved the
+    light at least ``settled_deg`` from the light the pass's normals were fitted under, up to ``max_passes`` passes in
+    all (``pure`` being the first)."""
+    for passes in range(2, max_passes + 1):
+        moved = float(angle_between_deg(pure.refined_light_dir_cam, pure.light_dir_cam))
+        if moved < settled_deg:
+            break
+        pure = again(pure)
+        log.info("pass %d from the previous light step's light (it had moved the light %.3f deg): %d points kept", passes, moved, len(pure.points))
+    return pure
 
 
 def common_turn_deg(normals, surface_normals, axis) -> float:
