@@ -315,7 +315,7 @@ def test_one_estimators_failure_on_a_cloud_leaves_the_others(tmp_path, monkeypat
 
     light = cameras.light_dir_cam(10.0)
     obs = estimation.synthetic_observations(200, 12, light, 0.6, 0.8, np.random.default_rng(0))
-    stage = SimpleNamespace(obs=obs, mission={}, pure=SimpleNamespace(observations=obs, refined_minnaert_k=0.8, light_dir_cam=light, refined_light_dir_cam=light))
+    stage = SimpleNamespace(obs=obs, mission={}, pure=SimpleNamespace(observations=obs, refined_minnaert_k=0.8, light_dir_cam=light, refined_light_dir_cam=light, normals_tilt_freely=False))
     run_estimator = table2.run_estimator
 
     def failing_iwano(obs, method, **options):
