@@ -112,3 +112,39 @@ def test_pure_samples_are_those_whose_bilinear_pixels_agree():
     assert cloud.sample_pure(image, uv[2:3], tolerance=0.5)[0] > 0
     # Unlit pixels are never pure samples.
     assert cloud.sample_pure(np.zeros((20, 20)), uv[:1], tolerance=1e-3)[0] == 0
+
+
+def _ring_poses(n_images=7, seed=3):
+    """Body-to-camera matrices of ``n_images`` cameras turned about y and moved, keyed by image ids with gaps."""
+    rng = np.random.default_rng(seed)
+    poses = {}
+    for image in range(n_images):
+        angle = rng.uniform(0, 2 * np.pi)
+        pose = np.eye(4)
+        pose[:3, :3] = [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
+        pose[:3, 3] = rng.normal(size=3) * 100
+        poses[2 * image + 1] = pose
+    return poses
+
+
+def test_rows_by_image_groups_every_row_once_in_order():
+    image_index = np.array([5, 1, 5, 3, 1, 1, 5])
+    groups = cloud.rows_by_image(image_index)
+    assert [image for image, _ in groups] == [1, 3, 5]
+    assert [rows.tolist() for _, rows in groups] == [[1, 4, 5], [3], [0, 2, 6]]
+
+
+def test_in_cameras_and_rotations_of_match_the_per_row_matrices_bit_for_bit():
+    # The refinement's sample arrays are turned image by image; every row must come out exactly as with its own
+    # matrix (poses_of), so that the refinement's results do not depend on how the rows are grouped.
+    rng = np.random.default_rng(0)
+    poses = _ring_poses()
+    image_index = rng.choice(sorted(poses), size=5000)
+    vectors = rng.normal(size=(5000, 3)) * 50
+    per_row = cloud.poses_of(poses, image_index)
+    points_cam = cloud.in_cameras(vectors, image_index, poses, translate=True)
+    assert np.array_equal(points_cam, np.einsum("nij,nj->ni", per_row[:, :3, :3], vectors) + per_row[:, :3, 3])
+    directions_cam = cloud.in_cameras(vectors, image_index, poses, translate=False)
+    assert np.array_equal(directions_cam, np.einsum("nij,nj->ni", per_row[:, :3, :3], vectors))
+    rotations = cloud.rotations_of(poses, image_index)
+    assert rotations.flags.c_contiguous and np.array_equal(rotations, per_row[:, :3, :3])

@@ -147,6 +147,37 @@ def poses_of(body_to_camera: dict, image_index) -> np.ndarray:
     return table[image_index]
 
 
+def rotations_of(body_to_camera: dict, image_index) -> np.ndarray:
+    """The body-to-camera rotation of every row's image, (n, 3, 3), contiguous: :func:`poses_of`'s rotations without
+    gathering the rest of each matrix (a sample array has up to millions of rows)."""
+    image_index = np.asarray(image_index, dtype=int)
+    table = np.zeros((max(body_to_camera, default=-1) + 1, 3, 3))
+    for image, pose in body_to_camera.items():
+        table[image] = np.asarray(pose)[:3, :3]
+    return table[image_index]
+
+
+def rows_by_image(image_index) -> list[tuple[int, np.ndarray]]:
+    """Each image that rows name, with its rows in ascending order: (image, rows) pairs, images ascending."""
+    image_index = np.asarray(image_index, dtype=int)
+    order = np.argsort(image_index, kind="stable")
+    groups = np.split(order, np.flatnonzero(np.diff(image_index[order])) + 1)
+    return [(int(image_index[rows[0]]), rows) for rows in groups if len(rows)]
+
+
+def in_cameras(vectors, image_index, body_to_camera: dict, *, translate: bool) -> np.ndarray:
+    """Each row's vector (n, 3) in its image's camera frame: turned by the image's rotation, and moved by its
+    translation where ``translate`` (points; not directions). Image by image, so no (n, 4, 4) array of poses is made."""
+    vectors = np.asarray(vectors, dtype=float)
+    out = np.empty_like(vectors)
+    for image, rows in rows_by_image(image_index):
+        pose = np.asarray(body_to_camera[image])
+        out[rows] = np.einsum("ij,nj->ni", pose[:3, :3], vectors[rows])
+        if translate:
+            out[rows] += pose[:3, 3]
+    return out
+
+
 def default_occlusion_tolerance(points: np.ndarray) -> float:
     """How far behind the occluding surface a point may lie and still count as seen: 2 % of the cloud's extent."""
     return 0.02 * float(np.ptp(points, axis=0).max())
@@ -161,13 +192,12 @@ def sample_images(points, image_index, body_to_camera: dict, intrinsics: Intrins
     callable ``purity_tolerance(image, uv)`` is another purity test with
     ``sample_pure``'s contract (``purity.PurityTest``: the sensor's).
     """
-    poses = poses_of(body_to_camera, image_index)
-    points_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], points) + poses[:, :3, 3]
+    points_cam = in_cameras(points, image_index, body_to_camera, translate=True)
     uv = project(points_cam, intrinsics)
     inside = (uv[:, 0] >= 1) & (uv[:, 0] < intrinsics.width - 1) & (uv[:, 1] >= 1) & (uv[:, 1] < intrinsics.height - 1)
     brightness = np.zeros(len(points))
-    for image in np.unique(image_index):
-        rows = np.flatnonzero((image_index == image) & inside)
+    for image, rows in rows_by_image(image_index):
+        rows = rows[inside[rows]]
         if purity_tolerance is None:
             brightness[rows] = sample_bilinear(images[image], uv[rows])
         elif callable(purity_tolerance):
@@ -193,8 +223,7 @@ def cloud_observations(
         occlusion_tolerance = default_occlusion_tolerance(cloud.points)
     point_index, image_index = visible_pairs(cloud, body_to_camera, min_cos_emission, occlusion_tolerance, surface)
     brightness, points_cam, inside = sample_images(cloud.points[point_index], image_index, body_to_camera, intrinsics, images, purity_tolerance)
-    poses = poses_of(body_to_camera, image_index)
-    normal_cam = np.einsum("nij,nj->ni", poses[:, :3, :3], cloud.normals[point_index])
+    normal_cam = in_cameras(cloud.normals[point_index], image_index, body_to_camera, translate=False)
     view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
     keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0)
     counts = np.bincount(point_index[keep], minlength=len(cloud.points))

@@ -249,7 +249,9 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
         }
         jac = [columns[c]() for c in free]
         residual = f - brightness
-        sums = per_point @ np.column_stack([jac[a] * jac[b] for a, b in pairs] + [column * residual for column in jac])
+        # Summed per point one product at a time: no (samples x products) array is made, and the sums are those of one product with it.
+        products = [jac[a] * jac[b] for a, b in pairs] + [column * residual for column in jac]
+        sums = np.column_stack([per_point @ product for product in products])
         jtj = np.empty((len(ids), len(free), len(free)))
         for column, (a, b) in enumerate(pairs):
             jtj[:, a, b] = jtj[:, b, a] = sums[:, column]
@@ -378,7 +380,7 @@ def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, 
     keep &= counts[pair_point] >= min_observations
     enough = counts >= min_observations
     p = pair_point[keep]
-    rotations = cloud_lib.poses_of(poses, pair_image[keep])[:, :3, :3]
+    rotations = cloud_lib.rotations_of(poses, pair_image[keep])
     view_cam = -points_cam[keep] / np.linalg.norm(points_cam[keep], axis=1, keepdims=True)
     start_albedo = np.where(enough, albedo, np.nan)
     start_k = np.where(enough, minnaert_k, np.nan)
@@ -493,8 +495,7 @@ def refine_by_pure_samples(
     rows = in_accepted[pair_point] >= 0
     point_index, image_index = in_accepted[pair_point[rows]], pair_image[rows]
     brightness, points_cam, inside = cloud_lib.sample_images(points[point_index], image_index, poses, intrinsics, images, purity_tolerance)
-    rotations = cloud_lib.poses_of(poses, image_index)[:, :3, :3]
-    normal_cam = np.einsum("nij,nj->ni", rotations, normals[point_index])
+    normal_cam = cloud_lib.in_cameras(normals[point_index], image_index, poses, translate=False)
     view_cam = -points_cam / np.linalg.norm(points_cam, axis=1, keepdims=True)
     # The fitted normal may turn away from a camera that saw the surface's: that sample goes.
     keep = inside & (brightness > 0) & (np.einsum("ij,ij->i", normal_cam, view_cam) > 0.05)
@@ -674,7 +675,7 @@ def anchored_light(pure: PureSampleCloud, poses: dict, axis, relative_sd, *, gai
     turn = common_turn_deg(pure.normals, pure.surface_normals, axis)
     normals = Rotation.from_rotvec(-np.radians(turn) * axis).apply(pure.normals)
     obs = pure.observations
-    rotations = cloud_lib.poses_of(poses, pure.image_index)[:, :3, :3]
+    rotations = cloud_lib.rotations_of(poses, pure.image_index)
 
     def fit_under(normals):
         """The light, k and gains fitted with ``normals`` held; the samples used, with the gains divided out; which rows they are."""
