@@ -2,6 +2,8 @@
 
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -103,3 +105,16 @@ def test_layering_check_catches_an_upward_import(tmp_path):
     bad = fake / "world" / "bad.py"
     bad.write_text("def f():\n    from asteroid_photometry.evaluation import truth\n")
     assert (2, "evaluation") in imported_packages(bad)
+
+
+#: The modules a stage's job imports (through its rule script); none of them builds a table.
+STAGE_MODULES = ["table1", "table2", "mission", "monte_carlo", "sensitivity", "mismatch"]
+
+
+@pytest.mark.parametrize("module", STAGE_MODULES)
+def test_stage_modules_import_without_pandas(module):
+    """pandas is imported where a table is built, not when a stage's module is: it takes about 0.45 s, and some
+    800 jobs of a full run import these modules without building one."""
+    code = f"import sys, asteroid_photometry.experiments.{module}; print('pandas' in sys.modules)"
+    run = subprocess.run([sys.executable, "-c", code], cwd=LIBRARY.parent, capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "False", f"importing experiments.{module} imports pandas"

@@ -15,9 +15,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # imported where a table is built: a stage's job has none to build, and pandas takes 0.45 s to import
+    import pandas as pd
 
 from asteroid_photometry.core.failures import DataFailure, OK, status_counts_line
 from asteroid_photometry.estimation import angle_between_deg, FitResult, light_angle_deg
@@ -91,6 +94,7 @@ def selection_agreement(selected: np.ndarray, selected_by_true_light: np.ndarray
 
 def _rows_with_status(summary_paths) -> pd.DataFrame:
     """The summary rows; a row without ``status`` (written before there was one) is ``ok``."""
+    import pandas as pd
     rows = [json.loads(Path(path).read_text()) for path in summary_paths]
     return pd.DataFrame([{"status": OK, **row} for row in rows])
 
@@ -118,11 +122,13 @@ def with_paper(table: pd.DataFrame, paper: pd.DataFrame) -> pd.DataFrame:
 
 
 def _fmt(value, digits):
+    import pandas as pd
     return "" if pd.isna(value) else f"{value:.{digits}f}"
 
 
 def text_cell(value) -> str:
     """A table cell as text: empty for a missing value, whole numbers without a decimal point."""
+    import pandas as pd
     if pd.isna(value):
         return ""
     return f"{value:.0f}" if isinstance(value, float) and value.is_integer() else str(value)
@@ -212,6 +218,7 @@ def sweep_markdown(table: pd.DataFrame, sweep: str) -> str:
 
 def runtime_table(benchmark_paths) -> pd.DataFrame:
     """One row per benchmarked job: stage, job (wildcards), seconds, peak memory."""
+    import pandas as pd
     rows = []
     for path in benchmark_paths:
         path = Path(path)
@@ -236,6 +243,7 @@ def fit_timing_table(summary_paths) -> pd.DataFrame:
     ``stage`` and ``job`` name the fit as ``runtime_table`` names its job
     (``fit``, ``<set_id>/<method>``; ``fit_cloud``, ``<set_id>/priors-<on|off>/<method>``).
     """
+    import pandas as pd
     rows = []
     for path in summary_paths:
         path = Path(path)
@@ -314,6 +322,7 @@ def monte_carlo_summary(draws: pd.DataFrame) -> pd.DataFrame:
     Only the draws whose ``status`` is ok count; a set with none has its
     first failure's reason as its status and no numbers.
     """
+    import pandas as pd
     draws = draws.assign(status=draws["status"].fillna(OK)) if "status" in draws else draws.assign(status=OK)
     ok = draws[draws.status == OK]
 

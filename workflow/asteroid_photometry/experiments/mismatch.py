@@ -34,9 +34,12 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # imported where a table is built: a stage's job has none to build, and pandas takes 0.45 s to import
+    import pandas as pd
 
 from asteroid_photometry.core import files
 from asteroid_photometry.estimation import model_fit, Observations
@@ -266,6 +269,7 @@ def phase_sweep_set(geometry_npz, shape_npz, cameras_json, render_dir, light_ang
 
 
 def collect(json_paths) -> pd.DataFrame:
+    import pandas as pd
     rows = [row for path in json_paths for row in json.loads(Path(path).read_text())]
     return pd.DataFrame(rows)
 
@@ -276,6 +280,7 @@ def model_selection(table: pd.DataFrame) -> pd.DataFrame:
     A cell counts where the models differ by more than the noise: the
     fitted law's noiseless residual RMS exceeds the noise RMS.
     """
+    import pandas as pd
     cross = table[table.experiment == "cross_fit"]
     clean = cross[cross.noise == "none"].set_index(["render_model", "light_angle_deg", "fit_model"])
     noisy = cross[cross.noise != "none"]
@@ -351,6 +356,7 @@ def markdown(table: pd.DataFrame, selection: pd.DataFrame) -> str:
 
 
 def write_tables(json_paths, out_csv, out_markdown, out_phase_png, out_bic_png) -> None:
+    import pandas as pd
     import matplotlib
 
     matplotlib.use("Agg")

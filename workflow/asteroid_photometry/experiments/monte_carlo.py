@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # imported where a table is built: a stage's job has none to build, and pandas takes 0.45 s to import
+    import pandas as pd
 
 from asteroid_photometry.core import files
 from asteroid_photometry.core.failures import DataFailure, record, table_status
@@ -31,6 +34,7 @@ def noise_monte_carlo_set(geometry_npz, shape_npz, cameras_json, thresholds: dic
     Table 1 columns, the selection's, and the Cramer-Rao comparison of
     :func:`cramer_rao_summary`.
     """
+    import pandas as pd
     candidates = observe.ObservationGeometry.load(geometry_npz)
     lit = load_lit_test(shape_npz, cameras_json, candidates, thresholds)
     sensor = noise.sensor_from_config(sensor_entry)
@@ -61,6 +65,7 @@ def noise_monte_carlo_set(geometry_npz, shape_npz, cameras_json, thresholds: dic
 
 
 def write_monte_carlo_table(draw_csvs, out_csv, out_markdown) -> None:
+    import pandas as pd
     table = metrics.monte_carlo_summary(pd.concat([pd.read_csv(path) for path in draw_csvs], ignore_index=True))
     files.write_csv(table, out_csv)
     files.write_text(out_markdown, metrics.monte_carlo_markdown(table))

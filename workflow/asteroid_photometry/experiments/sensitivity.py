@@ -28,9 +28,12 @@ enters the estimate:
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # imported where a table is built: a stage's job has none to build, and pandas takes 0.45 s to import
+    import pandas as pd
 
 from asteroid_photometry import estimation
 from asteroid_photometry.core import files
@@ -127,6 +130,7 @@ def sensitivity_set(observations_npz, render_dir, shape_npz, image_set: ImageSet
     for the true surface sampled as the cloud is. A set that failed gives one
     row with the reason as its status.
     """
+    import pandas as pd
     try:
         rows = _sensitivity_rows(observations_npz, render_dir, shape_npz, image_set, settings, observation_settings, cloud_settings, set_id)
     except DataFailure as failure:
@@ -174,6 +178,7 @@ def _sensitivity_rows(observations_npz, render_dir, shape_npz, image_set: ImageS
 
 
 def write_table(csv_paths, out_csv, out_markdown, out_plot) -> None:
+    import pandas as pd
     from asteroid_photometry.evaluation.plots import plot_geometry_sensitivity
 
     table = pd.concat([pd.read_csv(path) for path in csv_paths], ignore_index=True)

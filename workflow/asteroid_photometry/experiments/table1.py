@@ -11,9 +11,12 @@ import json
 import logging
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # imported where a table is built: a stage's job has none to build, and pandas takes 0.45 s to import
+    import pandas as pd
 
 from asteroid_photometry import estimation
 from asteroid_photometry.core import files
@@ -330,6 +333,7 @@ def cramer_rao_summary(obs: estimation.Observations, arrays: dict, result) -> di
 
 
 def write_table1(summary_paths, paper_csv, out_csv, out_markdown) -> None:
+    import pandas as pd
     table = metrics.collect_table1(summary_paths)
     paper = pd.read_csv(paper_csv)
     files.write_csv(table, out_csv)
@@ -338,6 +342,7 @@ def write_table1(summary_paths, paper_csv, out_csv, out_markdown) -> None:
 
 
 def write_table1_plots(table_csv, estimate_paths, outputs) -> None:
+    import pandas as pd
     from asteroid_photometry.evaluation import plots
 
     table = pd.read_csv(table_csv)
@@ -370,6 +375,7 @@ def write_sweep_table(summary_paths, sweep: str, out_csv, out_markdown) -> None:
 
 
 def write_noise_plot(noise_csv, out_png) -> None:
+    import pandas as pd
     from asteroid_photometry.evaluation import plots
 
     plots.plot_errors_against_bound(pd.read_csv(noise_csv), out_png)

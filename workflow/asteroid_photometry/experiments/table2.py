@@ -20,9 +20,12 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # imported where a table is built: a stage's job has none to build, and pandas takes 0.45 s to import
+    import pandas as pd
 
 from asteroid_photometry import estimation
 from asteroid_photometry.core import files
@@ -941,6 +944,7 @@ def light_err_over_bound(table: pd.DataFrame) -> pd.Series:
     """Each row's final light error over its bound: the condition's (``metrics.table2_bounds``), or, where the noise
     alone allows less, ``CRB_FACTOR`` times the Cramer-Rao deviation of the light for the observations used
     (``light_crb_deg_final``, NaN for noise-free images). 1 or less is within the bound."""
+    import pandas as pd
     fixed = table["imaging"].map(lambda imaging: metrics.table2_bounds(imaging)["light_dir_err_deg"]).astype(float)
     crb = table["light_crb_deg_final"] if "light_crb_deg_final" in table else pd.Series(np.nan, index=table.index)
     bound = np.fmax(fixed, CRB_FACTOR * crb.astype(float))
@@ -948,6 +952,7 @@ def light_err_over_bound(table: pd.DataFrame) -> pd.Series:
 
 
 def write_table2(summary_paths, out_csv, out_markdown) -> None:
+    import pandas as pd
     rows = [{"status": OK, **json.loads(Path(path).read_text())} for path in summary_paths]
     table = metrics.without_timings(pd.DataFrame(rows))
     for final, source in FINAL_COLUMNS.items():
@@ -963,6 +968,7 @@ def write_table2(summary_paths, out_csv, out_markdown) -> None:
 
 
 def table2_markdown(table: pd.DataFrame) -> str:
+    import pandas as pd
     paper = PAPER_TABLE2
     lines = [
         "# Table 2: from images alone", "",
@@ -1020,6 +1026,7 @@ def error_decomposition_markdown(table: pd.DataFrame) -> list[str]:
 def write_table2_plots(table_csv, cloud_errors_npz, method: str, title: str, out_stages_png, out_cloud_png, out_conditions_png) -> None:
     """Table 2's figures: errors from cloud to truth per set, the final errors per imaging condition against the paper's,
     and one set's cloud coloured by its per-point errors."""
+    import pandas as pd
     from asteroid_photometry.evaluation import plots
 
     table = pd.read_csv(table_csv)
