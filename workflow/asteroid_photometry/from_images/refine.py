@@ -249,7 +249,7 @@ def refine_points(point_index, rotations, view_cam, brightness, normals, albedo,
         }
         jac = [columns[c]() for c in free]
         residual = f - brightness
-        # Summed per point one product at a time: no (samples x products) array is made, and the sums are those of one product with it.
+        # Each product summed per point on its own: no (samples x products) array is made, and each sum adds the same terms in the same order.
         products = [jac[a] * jac[b] for a, b in pairs] + [column * residual for column in jac]
         sums = np.column_stack([per_point @ product for product in products])
         jtj = np.empty((len(ids), len(free), len(free)))
