@@ -138,23 +138,23 @@ def sample_pure(image: np.ndarray, uv: np.ndarray, tolerance: float) -> np.ndarr
     return np.where(pure, mean, 0.0)
 
 
-def poses_of(body_to_camera: dict, image_index) -> np.ndarray:
-    """The body-to-camera matrix of every row's image, (n, 4, 4): one table lookup, no loop over rows."""
-    image_index = np.asarray(image_index, dtype=int)
+def _pose_table(body_to_camera: dict) -> np.ndarray:
+    """The body-to-camera matrices indexed by image id, (max id + 1, 4, 4); zeros where no image has that id."""
     table = np.zeros((max(body_to_camera, default=-1) + 1, 4, 4))
     for image, pose in body_to_camera.items():
         table[image] = pose
-    return table[image_index]
+    return table
+
+
+def poses_of(body_to_camera: dict, image_index) -> np.ndarray:
+    """The body-to-camera matrix of every row's image, (n, 4, 4): one table lookup, no loop over rows."""
+    return _pose_table(body_to_camera)[np.asarray(image_index, dtype=int)]
 
 
 def rotations_of(body_to_camera: dict, image_index) -> np.ndarray:
     """The body-to-camera rotation of every row's image, (n, 3, 3), contiguous: :func:`poses_of`'s rotations without
     gathering the rest of each matrix (a sample array has up to millions of rows)."""
-    image_index = np.asarray(image_index, dtype=int)
-    table = np.zeros((max(body_to_camera, default=-1) + 1, 3, 3))
-    for image, pose in body_to_camera.items():
-        table[image] = np.asarray(pose)[:3, :3]
-    return table[image_index]
+    return np.ascontiguousarray(_pose_table(body_to_camera)[:, :3, :3])[np.asarray(image_index, dtype=int)]
 
 
 def rows_by_image(image_index) -> list[tuple[int, np.ndarray]]:
