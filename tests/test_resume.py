@@ -171,14 +171,11 @@ def test_killed_run_resumes_to_the_same_tables(first_run, tmp_path):
 
 
 def _running_fit(workdir):
-    """A fit job (Table 1's ``fit``, of one estimator, or Table 2's ``score_cloud``, of all) that has started (its log
-    exists) but not written its summaries."""
-    for log_file in (workdir / "logs" / "fit").glob("**/*.log"):
-        job = log_file.relative_to(workdir / "logs" / "fit").with_suffix(".json")
-        if not (workdir / "results" / "fits" / job).exists():
-            return job
-    for log_file in (workdir / "logs" / "score_cloud").glob("**/*.log"):
-        job = log_file.relative_to(workdir / "logs" / "score_cloud").with_suffix("")
-        if not all((workdir / "results" / "fits_cloud" / job / f"{method}.json").exists() for method in ESTIMATORS):
-            return job
+    """A fit job (Table 1's ``fit`` or Table 2's ``score_cloud``, every estimator of a set in either) that has started (its
+    log exists) but not written all its summaries."""
+    for stage, results in (("fit", "fits"), ("score_cloud", "fits_cloud")):
+        for log_file in (workdir / "logs" / stage).glob("**/*.log"):
+            job = log_file.relative_to(workdir / "logs" / stage).with_suffix("")
+            if not all((workdir / "results" / results / job / f"{method}.json").exists() for method in ESTIMATORS):
+                return job
     return None

@@ -3,7 +3,7 @@
 
 rule tabulate_table1:
     input:
-        summaries=expand(rules.fit.output.summary, set_id=BASE_SETS, method=ESTIMATORS),
+        summaries=expand(FIT_SUMMARY, set_id=BASE_SETS, method=ESTIMATORS),
         paper=workflow.source_path("../resources/paper_table1.csv"),
     output:
         csv=report("results/tables/table1.csv", caption="../report/table1.rst", category="Tables"),
@@ -19,7 +19,7 @@ rule tabulate_table1:
 rule plot_table1:
     input:
         table=rules.tabulate_table1.output.csv,
-        estimates=expand(rules.fit.output.estimates, set_id=BASE_SETS, method=ESTIMATORS),
+        estimates=expand(FIT_ESTIMATES, set_id=BASE_SETS, method=ESTIMATORS),
     output:
         light=report("results/plots/light_angle.png", caption="../report/plots.rst", category="Plots"),
         albedo=report("results/plots/albedo.png", caption="../report/plots.rst", category="Plots"),
@@ -40,7 +40,7 @@ rule tabulate_runtime:
             rules.observation_geometry.benchmark,
             *[rules.add_noise.benchmark.format(clean_id=clean_id, level=level) for clean_id, level in map(split_noisy_set, SWEEPS.get("noise", []))],
             *expand(rules.observe.benchmark, set_id=SETS),
-            *expand(rules.fit.benchmark, set_id=SETS, method=ESTIMATORS),
+            *expand(rules.fit.benchmark, set_id=SETS),
             *expand(rules.noise_monte_carlo.benchmark, set_id=MONTE_CARLO_SETS),
             *expand(rules.geometry_sensitivity.benchmark, set_id=SENSITIVITY_SETS),
             *[rules.render_condition.benchmark.format(**job) for job in condition_render_jobs()],
@@ -57,7 +57,7 @@ rule tabulate_runtime:
         ],
         # The fits' own wall-clock seconds, kept out of the science tables.
         summaries=lambda wildcards: [
-            *expand(rules.fit.output.summary, set_id=SETS, method=ESTIMATORS),
+            *expand(FIT_SUMMARY, set_id=SETS, method=ESTIMATORS),
             *per_condition(CLOUD_SUMMARY, priors=PRIOR_SETTINGS, method=ESTIMATORS),
         ],
     output:
@@ -74,7 +74,7 @@ rule tabulate_runtime:
 rule tabulate_sweep:
     input:
         summaries=lambda wildcards: expand(
-            rules.fit.output.summary, set_id=SWEEPS[wildcards.sweep], method=ESTIMATORS
+            FIT_SUMMARY, set_id=SWEEPS[wildcards.sweep], method=ESTIMATORS
         ),
     output:
         csv=report("results/tables/{sweep}.csv", caption="../report/sweep.rst", category="Tables"),
@@ -92,7 +92,7 @@ rule tabulate_sweep:
 rule plot_error_map:
     input:
         shape=rules.prepare_shape.output.npz,
-        estimates=lambda wildcards: rules.fit.output.estimates.format(set_id=error_map_set(wildcards), method=ESTIMATORS[0]),
+        estimates=lambda wildcards: FIT_ESTIMATES.format(set_id=error_map_set(wildcards), method=ESTIMATORS[0]),
     output:
         png=report("results/plots/error_map_{map_name}.png", caption="../report/error_map.rst", category="Plots"),
     params:
