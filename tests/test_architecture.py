@@ -108,7 +108,46 @@ def test_layering_check_catches_an_upward_import(tmp_path):
 
 
 #: The modules a stage's job imports (through its rule script); none of them builds a table.
-STAGE_MODULES = ["table1", "table2", "mission", "monte_carlo", "sensitivity", "mismatch"]
+STAGE_MODULES = ["table1", "table2", "table2_scoring", "mission", "monte_carlo", "sensitivity", "mismatch"]
+#: The modules that read the truth: the one that reads the true light, poses, albedo and k, and the mission stage's (it
+#: writes and reads the mission set's truth file).
+TRUTH_MODULES = ["asteroid_photometry.evaluation.truth", "asteroid_photometry.experiments.mission"]
+
+
+def modules_loaded_by(module: str, of: list[str]) -> list[str]:
+    """Which of ``of`` importing ``module`` (in a fresh interpreter) loads."""
+    code = f"import sys, {module}; print(' '.join(m for m in {of!r} if m in sys.modules))"
+    run = subprocess.run([sys.executable, "-c", code], cwd=LIBRARY.parent, capture_output=True, text=True, check=True)
+    return run.stdout.split()
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every module (``from m import name``: ``m`` and ``m.name``) this file imports, at any depth (lazy imports too)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            found |= {node.module} | {f"{node.module}.{alias.name}" for alias in node.names}
+        elif isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+    return found
+
+
+#: The rules of Table 2 from the mission set to the estimates (tests/test_truth_dag.py walks their inputs).
+IMAGE_ONLY_SCRIPTS = ["match_features", "reconstruct", "register_cloud", "refine_cloud", "estimate_cloud"]
+
+
+def test_the_image_only_stages_import_nothing_that_reads_the_truth():
+    """Table 2's stages from the mission set to the estimates cannot call what reads the truth: their rule scripts
+    import the library's ``experiments.table2`` only (and the logging), which imports neither truth module, at any
+    depth, nor loads one. Their scoring (``experiments.table2_scoring``) loads both."""
+    for script in IMAGE_ONLY_SCRIPTS:
+        library = {m for m in imported_modules(REPO / "workflow" / "scripts" / f"{script}.py") if m.startswith("asteroid_photometry.")}
+        allowed = {"asteroid_photometry.core.logs", "asteroid_photometry.experiments.table2"}
+        assert [m for m in library if m not in allowed and m.rsplit(".", 1)[0] not in allowed] == [], script
+    stages = imported_modules(LIBRARY / "experiments" / "table2.py")
+    assert not [m for m in stages if any(m == t or m.startswith(t + ".") for t in TRUTH_MODULES)]
+    assert modules_loaded_by("asteroid_photometry.experiments.table2", TRUTH_MODULES) == []
+    assert modules_loaded_by("asteroid_photometry.experiments.table2_scoring", TRUTH_MODULES) == TRUTH_MODULES
 
 
 @pytest.mark.parametrize("module", STAGE_MODULES)

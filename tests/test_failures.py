@@ -247,9 +247,9 @@ RECONSTRUCTION = {
 def test_too_few_images_to_reconstruct_is_a_table2_row_with_its_reason(four_image_set, tmp_path):
     from asteroid_photometry.experiments.mission import mission_stage
     from asteroid_photometry.experiments.table2 import (
-        CloudStageInputs, estimate_cloud_stage, match_features_stage, reconstruct_stage, refine_stage, register_stage, score_cloud_stage,
-        ScoringInputs, write_table2,
+        CloudStageInputs, estimate_cloud_stage, match_features_stage, reconstruct_stage, refine_stage, register_stage,
     )
+    from asteroid_photometry.experiments.table2_scoring import score_cloud_stage, ScoringInputs, write_table2
 
     mission_dir = tmp_path / "mission"
     mission_stage(four_image_set, {"name": "ideal", "prior_sigma_m": 0.01}, [], 0, 0, mission_dir, tmp_path / "truth.json")
@@ -311,7 +311,7 @@ def test_one_estimators_failure_on_a_cloud_leaves_the_others(tmp_path, monkeypat
     """The estimators of a cloud run in one job: one that fails gets its own failed file and row, the others their own."""
     from types import SimpleNamespace
 
-    from asteroid_photometry.experiments import table2
+    from asteroid_photometry.experiments import table2, table2_scoring
 
     light = cameras.light_dir_cam(10.0)
     obs = estimation.synthetic_observations(200, 12, light, 0.6, 0.8, np.random.default_rng(0))
@@ -340,8 +340,8 @@ def test_one_estimators_failure_on_a_cloud_leaves_the_others(tmp_path, monkeypat
     (tmp_path / "reg.json").write_text(json.dumps({"status": "failed", "reason": "register: no unambiguous registration", "registration_ok": False}))
     inputs = table2.CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", tmp_path / "mission", tmp_path / "refined.npz")
     rows = {method: tmp_path / f"{method}.json" for method in methods}
-    table2.score_cloud_stage(
-        inputs, table2.ScoringInputs(estimates, tmp_path / "no_shape.npz", tmp_path / "truth.json", tmp_path / "render"),
+    table2_scoring.score_cloud_stage(
+        inputs, table2_scoring.ScoringInputs(estimates, tmp_path / "no_shape.npz", tmp_path / "truth.json", tmp_path / "render"),
         "light10_albedo0.6_k0.8", "ideal", "on", RECONSTRUCTION, rows, {method: tmp_path / f"errors_{method}.npz" for method in methods},
     )
     statuses = {method: json.loads(rows[method].read_text())["status"] for method in methods}

@@ -210,7 +210,7 @@ def test_table2s_light_bound_is_raised_only_where_the_noise_allows_less():
     """light_err_over_bound_final: the error over the condition's bound, or over three Cramer-Rao deviations if that is larger."""
     import pandas as pd
 
-    from asteroid_photometry.experiments.table2 import light_err_over_bound
+    from asteroid_photometry.experiments.table2_scoring import light_err_over_bound
 
     table = pd.DataFrame({
         "imaging": ["amica", "amica", "ideal", "amica"],

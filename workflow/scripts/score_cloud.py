@@ -2,7 +2,8 @@
 
 import _workflow_path  # noqa: F401 (puts the library on sys.path)
 from asteroid_photometry.core.logs import setup_logging
-from asteroid_photometry.experiments.table2 import CloudStageInputs, score_cloud_stage, ScoringInputs
+from asteroid_photometry.experiments.table2 import CloudStageInputs
+from asteroid_photometry.experiments.table2_scoring import score_cloud_stage, ScoringInputs
 
 setup_logging(snakemake.log[0])  # noqa: F821 (set by Snakemake's script: directive)
 methods = snakemake.params.methods  # noqa: F821

@@ -34,12 +34,9 @@ from asteroid_photometry.evaluation.truth import true_light, true_poses
 from asteroid_photometry.world import degrade
 from asteroid_photometry.world.cameras import simulate_navigation_positions
 from asteroid_photometry.world.images import MISSION_FILE, read_rendered_images, write_linear_exr
+from asteroid_photometry.world.shape import ROTATION_PERIOD_H
 
 log = logging.getLogger(__name__)
-
-#: Itokawa's rotation period (hours): the image times of a set that turns once in ``n_images`` steps.
-ROTATION_PERIOD_H = 12.132
-
 
 def mission_stage(render_dir, condition_entry: dict, noise_levels: list, seed, prior_seed: int, out_dir, out_truth) -> None:
     """The mission set of one rendered set under one imaging condition, and its truth file (module docstring).

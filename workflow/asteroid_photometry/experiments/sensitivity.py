@@ -1,7 +1,7 @@
 """What the estimator needs from the geometry: why Table 2 stops where it does.
 
 The cloud of Table 2 misses bounds that Table 1 meets, and its truth-in fits
-(``table2.oracle_rows``) point at the geometry. This stage measures, per set
+(``table2_scoring.oracle_rows``) point at the geometry. This stage measures, per set
 and on the true geometry itself, the two ways a reconstruction's geometry
 enters the estimate:
 

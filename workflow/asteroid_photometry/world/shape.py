@@ -50,6 +50,9 @@ logger = logging.getLogger(__name__)
 SHIPPED_SHAPE_DIR = Path(__file__).resolve().parents[2] / "resources" / "shape"
 
 METRES_PER_KM = 1000.0
+#: Itokawa's rotation period (hours), which a mission knows: the image times of a set that turns once in ``n_images``
+#: steps (rule ``mission``), and each image's rotation phase from its time (``experiments.table2``).
+ROTATION_PERIOD_H = 12.132
 # Checksum quantum: 1e-6 km (1 mm). Both archives give coordinates to at most
 # 1e-6 km (Gaskell to 1e-5 km, Ostro's E14.6 values to 1e-6 km), so rounding
 # to this quantum is lossless and never meets a half-way tie.
