@@ -119,6 +119,21 @@ def test_small_run_writes_every_output(small_run):
         truth = json.loads((small_run / f"results/truth/mission/{imaging}/light10_albedo0.6_k0.8.json").read_text())
         assert truth["light_dir_cam"] == frames["light_dir_cam"] and len(truth["images"]) == 36
     assert mission["sensor"]["name"] == "amica12" and mission["navigation"]["sigma_m"] == 10.0
+    # Each set and condition draws its own navigation error: one draw shared by all would sit under every row.
+    from asteroid_photometry.world.cameras import camera_centres_body
+
+    errors = {}
+    for imaging in ("ideal", "amica"):
+        for set_id in ("light0_albedo0.6_k0.8", "light10_albedo0.6_k0.8"):
+            mission = json.loads((small_run / f"results/mission/{imaging}/{set_id}/mission.json").read_text())
+            truth = json.loads((small_run / f"results/truth/mission/{imaging}/{set_id}.json").read_text())
+            centres = camera_centres_body(np.array([image["body_to_camera"] for image in truth["images"]]))
+            errors[imaging, set_id] = (np.array(mission["navigation"]["camera_centres_body_m"]) - centres) / mission["navigation"]["sigma_m"]
+    unit_errors = list(errors.values())
+    for i, first in enumerate(unit_errors):
+        assert abs(np.std(first) - 1.0) < 0.25  # per axis N(0, sigma^2)
+        for second in unit_errors[i + 1:]:
+            assert abs(np.corrcoef(first.ravel(), second.ravel())[0, 1]) < 0.5
     runtime = pd.read_csv(small_run / "results/tables/runtime.csv")
     assert set(runtime.stage) == {
         "render", "add_noise", "observation_geometry", "observe", "fit", "match_features", "reconstruct", "register_cloud", "refine_cloud", "mission",

@@ -158,6 +158,13 @@ def mission_seed(wildcards):
     return [config["noise_seed"], SETS[wildcards.set_id].seed, list(CONDITIONS).index(wildcards.imaging)]
 
 
+def mission_prior_seed(wildcards):
+    """The seed of a mission set's navigation errors: reconstruction.prior_seed, the set's own seed and the condition's
+    place in the list. Each set and condition draws its own, as it does its noise and gains: one draw shared by every set
+    would put the same navigation error under every row of Table 2."""
+    return [config["reconstruction"]["prior_seed"], SETS[wildcards.set_id].seed, list(CONDITIONS).index(wildcards.imaging)]
+
+
 def split_noisy_set(set_id):
     """``(clean_id, level)`` of a noisy set's id."""
     clean_id, level = set_id.rsplit("_noise-", 1)

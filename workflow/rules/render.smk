@@ -108,7 +108,7 @@ rule mission:
         condition=mission_condition,
         noise_levels=config["noise_levels"],
         seed=mission_seed,
-        prior_seed=config["reconstruction"]["prior_seed"],
+        prior_seed=mission_prior_seed,
     log:
         "logs/mission/{imaging}/{set_id}.log",
     benchmark:

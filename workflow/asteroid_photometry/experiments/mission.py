@@ -38,13 +38,13 @@ from asteroid_photometry.world.shape import ROTATION_PERIOD_H
 
 log = logging.getLogger(__name__)
 
-def mission_stage(render_dir, condition_entry: dict, noise_levels: list, seed, prior_seed: int, out_dir, out_truth) -> None:
+def mission_stage(render_dir, condition_entry: dict, noise_levels: list, seed, prior_seed, out_dir, out_truth) -> None:
     """The mission set of one rendered set under one imaging condition, and its truth file (module docstring).
 
     ``condition_entry``: an ``imaging_conditions`` entry of the config;
     ``noise_levels``: the config's, where its ``sensor_level`` is found;
     ``seed``: the degradations' seed (gains, noise); ``prior_seed``: the
-    navigation noise's. The images are written into a temporary directory
+    navigation noise's (each: anything ``numpy.random.default_rng`` takes). The images are written into a temporary directory
     that replaces ``out_dir`` when complete.
     """
     condition = degrade.condition_from_config(condition_entry)
@@ -87,7 +87,7 @@ def mission_stage(render_dir, condition_entry: dict, noise_levels: list, seed, p
         "images": [{"index": index, "body_to_camera": pose.tolist()} for index, pose in enumerate(poses)],
         "gains": np.asarray(gains, dtype=float).tolist(),
         "seed": seed if isinstance(seed, int) else list(seed),
-        "prior_seed": int(prior_seed),
+        "prior_seed": prior_seed if isinstance(prior_seed, int) else list(prior_seed),
     }
     files.write_json(out_truth, truth)
     log.info(

@@ -98,11 +98,13 @@ def camera_centres_body(body_to_camera: np.ndarray) -> np.ndarray:
     return -np.einsum("nji,nj->ni", rotation, translation)
 
 
-def simulate_navigation_positions(body_to_camera: np.ndarray, sigma_m: float, seed: int = 0) -> np.ndarray:
+def simulate_navigation_positions(body_to_camera: np.ndarray, sigma_m: float, seed=0) -> np.ndarray:
     """A simulated navigation solution: the true camera centres in the body frame plus N(0, sigma_m^2) per axis, (n, 3) metres.
 
     What a mission knows of where its camera was; the world stage that writes
     a mission's files draws it from the true poses, nothing downstream does.
+    ``seed``: anything ``numpy.random.default_rng`` takes (the workflow's: the
+    configured seed, the set's and the condition's).
     """
     true_centres = camera_centres_body(np.asarray(body_to_camera, dtype=float))
     rng = np.random.default_rng(seed)
