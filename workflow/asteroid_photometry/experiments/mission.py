@@ -38,14 +38,16 @@ from asteroid_photometry.world.shape import ROTATION_PERIOD_H
 
 log = logging.getLogger(__name__)
 
+
 def mission_stage(render_dir, condition_entry: dict, noise_levels: list, seed, prior_seed, out_dir, out_truth) -> None:
     """The mission set of one rendered set under one imaging condition, and its truth file (module docstring).
 
     ``condition_entry``: an ``imaging_conditions`` entry of the config;
     ``noise_levels``: the config's, where its ``sensor_level`` is found;
     ``seed``: the degradations' seed (gains, noise); ``prior_seed``: the
-    navigation noise's (each: anything ``numpy.random.default_rng`` takes). The images are written into a temporary directory
-    that replaces ``out_dir`` when complete.
+    navigation noise's (each: anything ``numpy.random.default_rng`` takes).
+    The images are written into a temporary directory that replaces
+    ``out_dir`` when complete.
     """
     condition = degrade.condition_from_config(condition_entry)
     sensor = degrade.sensor_of(condition, noise_levels)
