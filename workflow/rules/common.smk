@@ -162,7 +162,7 @@ def mission_prior_seed(wildcards):
     """The seed of a mission set's navigation errors: reconstruction.prior_seed, the set's own seed and the condition's
     place in the list. Each set and condition draws its own, as it does its noise and gains: one draw shared by every set
     would put the same navigation error under every row of Table 2."""
-    return [config["reconstruction"]["prior_seed"], SETS[wildcards.set_id].seed, list(CONDITIONS).index(wildcards.imaging)]
+    return [config["reconstruction"]["prior_seed"], *mission_seed(wildcards)[1:]]
 
 
 def split_noisy_set(set_id):
