@@ -206,6 +206,32 @@ def test_table2s_light_bound_follows_the_mission_sensor_and_is_absent_without_on
     assert np.isnan(light_bound_deg(stage(None), fit, settings))
 
 
+def test_table2s_light_bound_leaves_out_the_points_the_fit_left_out():
+    """A point the final fit left out (``plausible_points``: NaN albedo and k) leaves the bound finite: the bound of
+    the fit's other points' observations, exactly (before, one such point made the whole set's bound NaN)."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from asteroid_photometry.estimation.registry import run_estimator
+    from asteroid_photometry.experiments.table2 import light_bound_deg
+
+    obs = synthetic_observations(300, 10, light_at(10.0), 0.5, 0.8, np.random.default_rng(5))
+    fit = run_estimator(obs, "koizumi_lm")
+    settings = {"min_observations_per_point": 4}
+    sensor = {"name": "test", "full_well_e": 30000.0, "read_noise_e": 0.0, "bit_depth": 16, "radiance_at_full_well": 1.0}
+    dropped = 7
+    albedo, minnaert_k = fit.albedo.copy(), fit.minnaert_k.copy()
+    albedo[dropped] = minnaert_k[dropped] = np.nan
+    partial = replace(fit, albedo=albedo, minnaert_k=minnaert_k)
+    bound = light_bound_deg(SimpleNamespace(mission={"sensor": sensor}, pure=SimpleNamespace(observations=obs)), partial, settings)
+    others = obs.rows(obs.point_index != dropped)
+    expected = light_bound_deg(SimpleNamespace(mission={"sensor": sensor}, pure=SimpleNamespace(observations=others)), partial, settings)
+    assert np.isfinite(bound) and bound > 0
+    assert bound == pytest.approx(expected, rel=1e-12)
+    # Leaving a point out loses information: the bound of all points' fit is smaller.
+    assert light_bound_deg(SimpleNamespace(mission={"sensor": sensor}, pure=SimpleNamespace(observations=obs)), fit, settings) < bound
+
+
 def test_table2s_light_bound_is_raised_only_where_the_noise_allows_less():
     """light_err_over_bound_final: the error over the condition's bound, or over three Cramer-Rao deviations if that is larger."""
     import pandas as pd

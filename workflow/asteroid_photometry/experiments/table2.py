@@ -593,12 +593,16 @@ def light_bound_deg(stage: CloudStage, fit: estimation.FitResult, settings: dict
     variance of each sample is the sensor model's for the mean of four
     pixels (``purity.PurityTest.sample_variance``). NaN for noise-free
     images (no sensor model: nothing bounds the error but the model itself)
-    or a fit of no point. No truth is read.
+    or a fit of no point. Points the fit left out are left out here too. No truth is read.
     """
     sensor = stage.mission.get("sensor")
     if not sensor or fit.n_points_fitted == 0:
         return float("nan")
     observations = stage.pure.observations if observations is None else observations
+    # A point the fit left out (``plausible_points``: k outside its range) has no albedo and k to evaluate the
+    # information at; its rows were not used.
+    fitted = np.isfinite(fit.albedo) & np.isfinite(fit.minnaert_k)
+    observations = observations.rows(fitted[observations.point_index])
     variance = PurityTest(sensor_from_config(sensor)).sample_variance(observations.brightness)
     bounds = cramer_rao_bounds(
         observations, fit.light_dir_cam, fit.albedo, fit.minnaert_k, variance, min_observations=settings["min_observations_per_point"],
