@@ -393,3 +393,31 @@ def test_the_second_pass_keeps_the_first_passs_axis_when_its_restart_leaves_the_
     assert starts[1][0][1] > 0.2  # the second pass did start from the restart's light
     assert starts[1][3] is not None and np.allclose(starts[1][3], spin)
     np.testing.assert_allclose(pure.image_gains, 1.01**2)
+
+
+def test_the_facet_turn_column_reads_a_known_lean_in_the_azimuth_columns_sense():
+    """``table2_scoring.facet_turn_deg``: facets turned from their surface normals by a common 0.8 degrees about the
+    body's spin axis, each with a symmetric scatter of several degrees on top, read as +0.8; and a light turned the same
+    way reads as a positive azimuth error about the cameras' spin axis, so the two columns share their sense."""
+    from scipy.spatial.transform import Rotation
+
+    from asteroid_photometry.evaluation import metrics
+    from asteroid_photometry.experiments.table2_scoring import BODY_SPIN_AXIS, facet_turn_deg
+
+    rng = np.random.default_rng(5)
+    lon, lat = rng.uniform(0, 2 * np.pi, 4000), np.radians(rng.uniform(-60, 60, 4000))
+    surface = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=1)
+    turns = np.radians(0.8 + rng.normal(0.0, 6.0, len(surface)))
+    facets = Rotation.from_rotvec(turns[:, None] * BODY_SPIN_AXIS).apply(surface)
+    assert facet_turn_deg(surface, facets) == pytest.approx(0.8, abs=0.25)
+    assert facet_turn_deg(facets, surface) == pytest.approx(-0.8, abs=0.25)
+    assert facet_turn_deg(surface, surface) == pytest.approx(0.0, abs=1e-9)
+
+    # The same turn, seen in a camera whose frame maps the body's spin axis to its own.
+    body_to_camera = Rotation.from_euler("x", -90, degrees=True).as_matrix()
+    light_true = np.array([np.sin(np.radians(10.0)), 0.0, -np.cos(np.radians(10.0))])
+    light_body = body_to_camera.T @ light_true
+    light_turned = body_to_camera @ Rotation.from_rotvec(np.radians(0.8) * BODY_SPIN_AXIS).apply(light_body)
+    azimuth, elevation = metrics.light_error_components_deg(light_turned, light_true, body_to_camera @ BODY_SPIN_AXIS)
+    assert azimuth == pytest.approx(0.8, abs=1e-6)
+    assert elevation == pytest.approx(0.0, abs=1e-6)

@@ -42,7 +42,7 @@ from asteroid_photometry.experiments.table2 import (
     plausible_points,
     read_cloud_stage,
 )
-from asteroid_photometry.from_images import cloud as cloud_lib, register
+from asteroid_photometry.from_images import cloud as cloud_lib, refine, register
 from asteroid_photometry.world import mesh
 from asteroid_photometry.world.cameras import Intrinsics
 from asteroid_photometry.world.shape import load_shape_npz
@@ -101,6 +101,25 @@ def truth_at_points(scoring: ScoringTruth, transform, points) -> CloudTruth:
     return CloudTruth(points_body, surface_body, facets, albedo, minnaert_k, normals, light)
 
 
+#: The body's spin axis in its own frame: the rendered body turns about +z (``true_poses``' rotations map it to the
+#: cameras' spin axis, which the ``light_err_azimuth_deg*`` columns turn about).
+BODY_SPIN_AXIS = np.array([0.0, 0.0, 1.0])
+
+
+def facet_turn_deg(surface_normals_body, facet_normals_body) -> float:
+    """The median turn (degrees) about the body's spin axis from each refined point's surface normal to its true facet's.
+
+    Right-handed about :data:`BODY_SPIN_AXIS`, the sense of the
+    ``light_err_azimuth_deg*`` columns. The light step under a sensor takes the
+    normals' common turn off on the premise that this is 0
+    (``refine.common_turn_deg``); where the refinement keeps facets turned one
+    way more often than the other, the final light's azimuth carries about
+    minus this (docs/table2.md, section 11).
+    """
+    turns = refine.turns_about(np.asarray(facet_normals_body, float), np.asarray(surface_normals_body, float), BODY_SPIN_AXIS)
+    return float(np.degrees(np.median(turns))) if turns.size else float("nan")
+
+
 def refinement_scores(
     set_id: str, priors: str, method: str, stage: CloudStage, fits: CloudFits, scoring: ScoringTruth, truth: CloudTruth, truth_refined: CloudTruth,
 ) -> tuple[dict, dict]:
@@ -143,6 +162,7 @@ def refinement_scores(
         refine_candidates=pure.n_candidates,
         refine_accepted=int(len(pure.points)),
         refine_distance_m_median=float(np.median(np.linalg.norm(truth_refined.surface_body - truth_refined.points_body, axis=1))),
+        refined_facet_turn_deg=facet_turn_deg(mesh.transform_normals(transform, pure.surface_normals), truth_refined.normals),
     )
     errors = dict(
         points_body=truth.points_body, albedo_error=before.albedo - truth.albedo, k_error=before.minnaert_k - truth.minnaert_k,
