@@ -116,8 +116,9 @@ def facet_turn_deg(surface_normals_body, facet_normals_body) -> float:
     way more often than the other, the final light's azimuth carries about
     minus this (docs/table2.md, section 11).
     """
-    turns = refine.turns_about(np.asarray(facet_normals_body, float), np.asarray(surface_normals_body, float), BODY_SPIN_AXIS)
-    return float(np.degrees(np.median(turns))) if turns.size else float("nan")
+    if len(surface_normals_body) == 0:
+        return float("nan")
+    return refine.common_turn_deg(np.asarray(facet_normals_body, float), np.asarray(surface_normals_body, float), BODY_SPIN_AXIS)
 
 
 def refinement_scores(
@@ -131,7 +132,7 @@ def refinement_scores(
     """
     before, after, joint, pure, transform = fits.before, fits.after, fits.joint, stage.pure, stage.transform
     light_true = truth.light_dir_cam
-    spin_axis_cam = true_poses(scoring.truth)[0, :3, :3] @ [0.0, 0.0, 1.0]
+    spin_axis_cam = true_poses(scoring.truth)[0, :3, :3] @ BODY_SPIN_AXIS
     scores = {}
     after_row = metrics.summary_row(set_id, after, truth_refined.scoring(light_true))
     normals_before = quality.normal_errors_deg(mesh.transform_normals(transform, stage.oriented.normals), truth.normals)
