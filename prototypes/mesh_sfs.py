@@ -8,9 +8,9 @@ k and image gains), and reads the truth only to print the light's error after
 each step.
 
 The surface is the cloud's Poisson surface subdivided to about ``edge_px``
-pixel footprints. Every pixel of every image whose ray meets it, one pixel
-inside the silhouette and every cast shadow, lit and seen above the cosine
-cuts, is a sample. The unknowns, fitted together by damped Gauss-Newton
+pixel footprints. Every pixel of every image whose ray meets it, ``margin``
+pixels (1) inside the silhouette and every cast shadow, lit and seen above
+the cosine cuts, is a sample. The unknowns, fitted together by damped Gauss-Newton
 (scipy's lsqr on the sparse Jacobian): each vertex's height along its
 normal (held to the Poisson surface by ``sigma_h`` and to its neighbours by
 ``sigma_edge``), a log albedo and a k offset per ``cell_m`` cube (the
@@ -66,6 +66,7 @@ ROBUST = float(opts.get("robust", 0.0))  # Cauchy scale in sigmas, 0: plain
 FIX_LIGHT = opts.get("fix_light", "0") == "1"
 GAINS = opts.get("gains", "1") == "1"
 WARM = int(opts.get("warm", 0))  # the first steps with the light held
+MARGIN = int(opts.get("margin", 1))  # pixels kept out inside the silhouette and every cast shadow
 RIGID = float(opts.get("rigid", 0.0))  # the heights' six rigid motions held at zero by this (0: not held)
 
 t0 = time.time()
@@ -161,7 +162,7 @@ def observe(h, light):
         lit[cand[shadow]] = False
         shape = (len(range(0, H, STRIDE)), len(range(0, W, STRIDE)))
         # one pixel in from the silhouette and from every shadow edge (the PSF mixes there)
-        inner = binary_erosion(on.reshape(shape), np.ones((3, 3))).ravel() & binary_erosion(lit.reshape(shape), np.ones((3, 3))).ravel()
+        inner = binary_erosion(on.reshape(shape), np.ones((3, 3)), iterations=MARGIN).ravel() & binary_erosion(lit.reshape(shape), np.ones((3, 3)), iterations=MARGIN).ravel()
         keep = inner & (cos_i >= MIN_COS_I) & (cos_e >= MIN_COS_E) & (img > 0)
         out["face"].append(fid[keep])
         out["image"].append(np.full(int(keep.sum()), i))
