@@ -45,6 +45,7 @@ from asteroid_photometry.experiments.table2 import read_reconstruction  # noqa: 
 from asteroid_photometry.from_images import cloud as cloud_lib  # noqa: E402
 from asteroid_photometry.from_images.purity import PurityTest  # noqa: E402
 from asteroid_photometry.world.images import read_mission  # noqa: E402
+from asteroid_photometry.world.cameras import pixel_rays_cam  # noqa: E402
 from asteroid_photometry.world.noise import sensor_from_config  # noqa: E402
 from asteroid_photometry.evaluation import metrics  # noqa: E402
 
@@ -68,6 +69,7 @@ GAINS = opts.get("gains", "1") == "1"
 WARM = int(opts.get("warm", 0))  # the first steps with the light held
 MARGIN = int(opts.get("margin", 1))  # pixels kept out inside the silhouette and every cast shadow
 RIGID = float(opts.get("rigid", 0.0))  # the heights' six rigid motions held at zero by this (0: not held)
+LSQR_ITS = int(opts.get("lsqr_its", 400))
 
 t0 = time.time()
 reg = np.load(f"{results}/registration/{imaging}/{set_id}/priors-{priors}.npz")
@@ -88,7 +90,7 @@ k_glob = float(ref["refined_minnaert_k"])
 # The mesh: the cloud's Poisson surface, subdivided to about EDGE_PX pixel footprints.
 V0, F0 = cloud_lib.poisson_surface(oriented)
 mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V0), o3d.utility.Vector3iVector(F0))
-centres = {i: -poses[i][:3, :3].T @ poses[i][:3, 3] for i in idx}
+centres = recon.camera_centres()
 dist = np.median([np.linalg.norm(c - V0.mean(0)) for c in centres.values()])
 footprint = dist / K.focal_px
 edges0 = np.linalg.norm(V0[F0[:, 0]] - V0[F0[:, 1]], axis=1)
@@ -117,6 +119,9 @@ logA = np.zeros(ncell)
 dk = np.zeros(ncell)
 logg = np.zeros(n_img)
 mesh_edges = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+# The mesh's six rigid motions as heights along the normals (unit rows), for ``rigid``: the reconstruction places the body.
+_x = P0 - P0.mean(0)
+RIGID_MODES = np.array([m / np.linalg.norm(m) for m in [D[:, j] for j in range(3)] + [np.einsum("ij,ij->i", np.cross(np.eye(3)[j], _x), D) for j in range(3)]])
 
 
 def face_normals(h):
@@ -128,7 +133,7 @@ def face_normals(h):
 
 
 def observe(h, light):
-    """Every interior, lit, seen pixel: (face, image, view_w, light_w rows, brightness, sigma_log)."""
+    """Every lit, seen pixel ``MARGIN`` pixels inside the silhouette and the cast shadows: face, image, view, brightness, sigma."""
     P, a, b, c, cross, norm = face_normals(h)
     n = cross / norm[:, None]
     scene = o3d.t.geometry.RaycastingScene()
@@ -137,8 +142,7 @@ def observe(h, light):
     H, W = images[0].shape
     vv, uu = np.mgrid[0:H:STRIDE, 0:W:STRIDE]
     uu, vv = uu.ravel() + 0.5, vv.ravel() + 0.5
-    dirs_cam = np.stack([(uu - K.cx) / K.focal_px, (vv - K.cy) / K.focal_px, np.ones_like(uu)], 1)
-    dirs_cam /= np.linalg.norm(dirs_cam, axis=1, keepdims=True)
+    dirs_cam = pixel_rays_cam(K, uu, vv)
     for i in idx:
         R = poses[i][:3, :3]
         C = centres[i]
@@ -161,7 +165,7 @@ def observe(h, light):
         shadow = np.isfinite(scene.cast_rays(o3d.core.Tensor(srays))["t_hit"].numpy())
         lit[cand[shadow]] = False
         shape = (len(range(0, H, STRIDE)), len(range(0, W, STRIDE)))
-        # one pixel in from the silhouette and from every shadow edge (the PSF mixes there)
+        # MARGIN pixels in from the silhouette and from every shadow edge (the PSF mixes there)
         inner = binary_erosion(on.reshape(shape), np.ones((3, 3)), iterations=MARGIN).ravel() & binary_erosion(lit.reshape(shape), np.ones((3, 3)), iterations=MARGIN).ravel()
         keep = inner & (cos_i >= MIN_COS_I) & (cos_e >= MIN_COS_E) & (img > 0)
         out["face"].append(fid[keep])
@@ -255,12 +259,8 @@ def prior_rows(h, dk, logg):
     blocks_r.append(np.array([logg.sum() / 1e-3]))
     blocks_J.append(sp.csr_matrix((np.full(n_img, 1 / 1e-3), (np.zeros(n_img, int), o_g + np.arange(n_img))), shape=(1, n_par)))
     if RIGID > 0:
-        # the mesh's six rigid motions, as heights along the normals (unit rows): none, the reconstruction places the body
-        x = P0 - P0.mean(0)
-        modes = [D[:, j] for j in range(3)] + [np.einsum("ij,ij->i", np.cross(np.eye(3)[j], x), D) for j in range(3)]
-        M = np.array([m / np.linalg.norm(m) for m in modes])
-        blocks_r.append(M @ h / RIGID)
-        blocks_J.append(sp.csr_matrix(np.hstack([M / RIGID, np.zeros((6, n_par - nv))])))
+        blocks_r.append(RIGID_MODES @ h / RIGID)
+        blocks_J.append(sp.hstack([sp.csr_matrix(RIGID_MODES / RIGID), sp.csr_matrix((6, n_par - nv))]))
     return np.concatenate(blocks_r), sp.vstack(blocks_J).tocsr()
 
 
@@ -284,7 +284,7 @@ for outer in range(OUTER):
     obs["image_pos"] = np.array([img_pos[i] for i in obs["image"]])
     print(f"outer {outer}: {len(obs['face'])} samples ({time.time()-t0:.0f} s)", flush=True)
     if outer == 0:
-        # albedo start: per cell, median log residual
+        # albedo start: per cell, the mean log residual
         r0, _ = residual_and_jac(obs, h, logA, k_glob, dk, logg, light, want_jac=False)
         resid = r0 * obs["sigma"]
         sums = np.bincount(cell[obs["face"]], weights=resid, minlength=ncell)
@@ -303,7 +303,7 @@ for outer in range(OUTER):
         colnorm[colnorm == 0] = 1.0
         As = A @ sp.diags(1 / colnorm)
         for attempt in range(6):
-            sol = lsqr(As, rhs, damp=np.sqrt(mu), atol=1e-6, btol=1e-6, iter_lim=int(opts.get('lsqr_its', 400)))
+            sol = lsqr(As, rhs, damp=np.sqrt(mu), atol=1e-6, btol=1e-6, iter_lim=LSQR_ITS)
             x = sol[0] / colnorm
             h_n = h + x[o_h:o_h + nv]
             logA_n = logA + x[o_a:o_a + ncell]
