@@ -10,22 +10,27 @@ each step.
 The surface is the cloud's Poisson surface subdivided to about ``edge_px``
 pixel footprints. Every pixel of every image whose ray meets it, ``margin``
 pixels (1) inside the silhouette and every cast shadow, lit and seen above
-the cosine cuts, is a sample. The unknowns, fitted together by damped Gauss-Newton
-(scipy's lsqr on the sparse Jacobian): each vertex's height along its
-normal (held to the Poisson surface by ``sigma_h`` and to its neighbours by
-``sigma_edge``), a log albedo and a k offset per ``cell_m`` cube (the
+the cosine cuts, is a sample. The unknowns, fitted together by Levenberg-
+Marquardt on the sparse Jacobian: each vertex's height along its normal (held
+to the Poisson surface by ``sigma_h_px`` and to its neighbours by
+``sigma_edge_px``), a log albedo and a k offset per cube of ``cell_px`` (the
 offsets held to the body's k by ``sigma_dk``), the body's k, the light (two
 angles) and a log gain per image (held by half the mission's stated scatter,
-their mean at zero). Residuals in log brightness over the sensor's noise
-plus a relative floor; ``robust`` > 0 weighs them by a Cauchy loss of that
-many sigmas. The samples are cast again after every ``inner`` steps.
-Variants: ``warm`` first steps with the light held, ``rigid`` > 0 holding
-the heights' six rigid motions at zero.
+their mean at zero). Lengths are in pixel footprints, so a reconstruction
+without navigation priors (its own scale) gets the same settings. Residuals in
+log brightness over the sensor's noise plus a relative floor; ``robust`` > 0
+weighs them by a Cauchy loss of that many sigmas. Each step solves the damped
+normal equations by a sparse LU (``solver=direct``; ``lsqr`` iterates
+instead), the damping starting at ``mu0`` and divided by ``mu_down`` after
+every accepted step. The samples are cast again after every ``inner`` steps.
+At the end it prints the light's standard deviation from the last normal
+matrix. Variants: ``warm`` first steps with the light held, ``rigid`` > 0
+holding the heights' six rigid motions at zero.
 
-usage (from the repository root, the venv's python):
+usage (from the repository root, the venv's python; the defaults are the
+settings of the record's second table):
     python prototypes/mesh_sfs.py RUN_RESULTS IMAGING SET PRIORS [key=value ...]
-e.g. python prototypes/mesh_sfs.py runs/tuning/results amica light5_albedo0.15_k1.15 on \
-        outer=3 inner=6 robust=1 lsqr_its=1000 edge_px=2.5
+e.g. python prototypes/mesh_sfs.py runs/tuning/results amica light5_albedo0.15_k1.15 on
 """
 
 import json
@@ -36,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 from scipy.ndimage import binary_erosion
-from scipy.sparse.linalg import lsqr
+from scipy.sparse.linalg import lsqr, splu
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 import open3d as o3d  # noqa: E402
@@ -51,25 +56,30 @@ from asteroid_photometry.evaluation import metrics  # noqa: E402
 
 results, imaging, set_id, priors = sys.argv[1:5]
 opts = dict(a.split("=") for a in sys.argv[5:])
-EDGE_PX = float(opts.get("edge_px", 1.5))  # target fine-mesh edge, in pixel footprints
-SIGMA_H = float(opts.get("sigma_h", 2.0))  # m, anchor of each vertex to the Poisson surface
-SIGMA_EDGE = float(opts.get("sigma_edge", 0.5))  # m, difference of heights along an edge
-CELL_M = float(opts.get("cell_m", 20.0))  # albedo / k cells
+EDGE_PX = float(opts.get("edge_px", 2.5))  # target fine-mesh edge, in pixel footprints
+# Lengths in pixel footprints (the reconstruction's own scale: without navigation priors it is not metres).
+SIGMA_H_PX = float(opts.get("sigma_h_px", 1.4))  # anchor of each vertex to the Poisson surface
+SIGMA_EDGE_PX = float(opts.get("sigma_edge_px", 0.35))  # difference of heights along an edge
+CELL_PX = float(opts.get("cell_px", 14.0))  # albedo / k cells
 SIGMA_DK = float(opts.get("sigma_dk", 0.025))
 FLOOR = float(opts.get("floor", 0.02))  # relative model floor added to the sensor's noise
 MIN_COS_E = float(opts.get("min_cos_e", 0.2))
 MIN_COS_I = float(opts.get("min_cos_i", 0.1))
-OUTER = int(opts.get("outer", 4))
-INNER = int(opts.get("inner", 3))
+OUTER = int(opts.get("outer", 3))
+INNER = int(opts.get("inner", 5))
 START = opts.get("start", "refined")  # refined | cloud
 STRIDE = int(opts.get("stride", 1))
-ROBUST = float(opts.get("robust", 0.0))  # Cauchy scale in sigmas, 0: plain
+ROBUST = float(opts.get("robust", 3.0))  # Cauchy scale in sigmas, 0: plain
 FIX_LIGHT = opts.get("fix_light", "0") == "1"
 GAINS = opts.get("gains", "1") == "1"
 WARM = int(opts.get("warm", 0))  # the first steps with the light held
 MARGIN = int(opts.get("margin", 1))  # pixels kept out inside the silhouette and every cast shadow
 RIGID = float(opts.get("rigid", 0.0))  # the heights' six rigid motions held at zero by this (0: not held)
 LSQR_ITS = int(opts.get("lsqr_its", 400))
+ATOL = float(opts.get("atol", 1e-6))
+MU0 = float(opts.get("mu0", 1e-5))  # Levenberg-Marquardt's first damping (of the column-scaled system)
+MU_DOWN = float(opts.get("mu_down", 10.0))  # its divisor after an accepted step
+SOLVER = opts.get("solver", "direct")  # direct (the damped normal equations by sparse LU) | lsqr (iterative, up to LSQR_ITS)
 
 t0 = time.time()
 reg = np.load(f"{results}/registration/{imaging}/{set_id}/priors-{priors}.npz")
@@ -104,11 +114,12 @@ F = np.asarray(mesh.triangles).copy()
 D = np.asarray(mesh.vertex_normals).copy()
 nv, nf = len(P0), len(F)
 cent0 = P0[F].mean(1)
+SIGMA_H, SIGMA_EDGE, CELL_M = SIGMA_H_PX * footprint, SIGMA_EDGE_PX * footprint, CELL_PX * footprint
 cell_key = np.floor(cent0 / CELL_M).astype(np.int64)
 _, cell = np.unique(cell_key, axis=0, return_inverse=True)
 cell = cell.ravel()
 ncell = cell.max() + 1
-print(f"mesh: {len(V0)} -> {nv} vertices, {nf} faces (x{2**n_sub}), median edge {np.median(edges0)/2**n_sub:.2f} m, footprint {footprint:.2f} m/px, {ncell} cells", flush=True)
+print(f"mesh: {len(V0)} -> {nv} vertices, {nf} faces (x{2**n_sub}), median edge {np.median(edges0)/2**n_sub:.2f} m, footprint {footprint:.2f} m/px, {ncell} cells of {CELL_M:.1f}", flush=True)
 
 # Unknowns: h (nv), logA (ncell), k_glob (1), dk (ncell), light (2), log gain (n_images)
 n_img = len(images)
@@ -161,7 +172,7 @@ def observe(h, light):
         lit = on & (cos_i > 0)
         # cast shadows
         cand = np.flatnonzero(lit)
-        srays = np.hstack([X[cand] + 0.05 * n[fidc[cand]], np.broadcast_to(lw, (len(cand), 3))]).astype(np.float32)
+        srays = np.hstack([X[cand] + 0.035 * footprint * n[fidc[cand]], np.broadcast_to(lw, (len(cand), 3))]).astype(np.float32)
         shadow = np.isfinite(scene.cast_rays(o3d.core.Tensor(srays))["t_hit"].numpy())
         lit[cand[shadow]] = False
         shape = (len(range(0, H, STRIDE)), len(range(0, W, STRIDE)))
@@ -290,7 +301,7 @@ for outer in range(OUTER):
         sums = np.bincount(cell[obs["face"]], weights=resid, minlength=ncell)
         cnts = np.bincount(cell[obs["face"]], minlength=ncell)
         logA = np.where(cnts > 0, sums / np.maximum(cnts, 1), 0.0)
-    mu = 1e-2 if outer == 0 else mu
+    mu = MU0 if outer == 0 else mu
     for inner in range(INNER):
         STEP[0] = outer * INNER + inner
         r, J = residual_and_jac(obs, h, logA, k_glob, dk, logg, light)
@@ -302,8 +313,16 @@ for outer in range(OUTER):
         colnorm = np.sqrt(np.asarray(A.multiply(A).sum(0)).ravel())
         colnorm[colnorm == 0] = 1.0
         As = A @ sp.diags(1 / colnorm)
+        if SOLVER == "direct":
+            normal = (As.T @ As).tocsc()
+            grad = As.T @ rhs
         for attempt in range(6):
-            sol = lsqr(As, rhs, damp=np.sqrt(mu), atol=1e-6, btol=1e-6, iter_lim=LSQR_ITS)
+            if SOLVER == "direct":
+                ts = time.time()
+                y = splu((normal + mu * sp.identity(n_par, format="csc")).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True)).solve(grad)
+                sol = (y, None, f"direct {time.time() - ts:.1f} s")
+            else:
+                sol = lsqr(As, rhs, damp=np.sqrt(mu), atol=ATOL, btol=ATOL, iter_lim=LSQR_ITS)
             x = sol[0] / colnorm
             h_n = h + x[o_h:o_h + nv]
             logA_n = logA + x[o_a:o_a + ncell]
@@ -318,7 +337,7 @@ for outer in range(OUTER):
             cost_n = 0.5 * (rn @ rn + prn @ prn)
             if cost_n < cost:
                 h, logA, k_glob, dk, light, logg = h_n, logA_n, k_n, dk_n, l_n, g_n
-                mu = max(mu / 3, 1e-6)
+                mu = max(mu / MU_DOWN, 1e-6)
                 break
             mu *= 10
         print(f"  inner {inner}: cost {cost:.4g} -> {cost_n:.4g} (mu {mu:.1e}, lsqr its {sol[2]}), k {k_glob:.4f}, |h| rms {np.sqrt(np.mean(h**2)):.3f} m, gains sd {np.std(logg):.4f} ({time.time()-t0:.0f} s)", flush=True)
@@ -329,4 +348,17 @@ for outer in range(OUTER):
     ce = np.einsum("ij,ij->i", (cr_ / no_[:, None])[obs["face"]], obs["view"])
     q = np.percentile(np.abs(rel), [50, 90, 99])
     print(f"  rel residual: rms {np.sqrt(np.mean(rel**2)):.4f}, |.| 50/90/99% {q[0]:.4f} {q[1]:.4f} {q[2]:.4f}; by cos_e band (mean, rms):", " ".join(f"[{lo:.1f}: {rel[(ce>=lo)&(ce<lo+0.2)].mean():+.4f} {np.sqrt(np.mean(rel[(ce>=lo)&(ce<lo+0.2)]**2)):.4f}]" for lo in (0.2, 0.4, 0.6, 0.8)), flush=True)
+# The light's standard deviation from the last samples' Gauss-Newton normal matrix (heights, albedo, k and gains marginalised).
+r, J = residual_and_jac(obs, h, logA, k_glob, dk, logg, light)
+pr, PJ = prior_rows(h, dk, logg)
+A = sp.vstack([J, PJ]).tocsr()
+colnorm = np.sqrt(np.asarray(A.multiply(A).sum(0)).ravel())
+colnorm[colnorm == 0] = 1.0
+As = A @ sp.diags(1 / colnorm)
+lu = splu((As.T @ As + 1e-9 * sp.identity(n_par, format="csc")).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+unit = np.zeros((n_par, 2))
+unit[o_l, 0] = unit[o_l + 1, 1] = 1.0
+cov = lu.solve(unit)[o_l:o_l + 2] / np.outer(colnorm[o_l:o_l + 2], colnorm[o_l:o_l + 2])
+sd = np.degrees(np.sqrt(np.linalg.eigvalsh(cov)))
+print(f"light sd from the fit: {sd[0]:.3f} / {sd[1]:.3f} deg (principal axes); k {k_glob:.4f}", flush=True)
 print(f"done in {time.time()-t0:.0f} s")
