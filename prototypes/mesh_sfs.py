@@ -76,6 +76,8 @@ WARM = int(opts.get("warm", 0))  # the first steps with the light held
 MARGIN = int(opts.get("margin", 1))  # pixels kept out inside the silhouette and every cast shadow
 RIGID = float(opts.get("rigid", 0.0))  # the heights' six rigid motions held at zero by this (0: not held)
 LSQR_ITS = int(opts.get("lsqr_its", 400))
+OUT = opts.get("out")  # an .npz for the fit's light (camera frame), body k and gains
+EVERY = int(opts.get("every", 1))  # every how many images are sampled (1: all)
 ATOL = float(opts.get("atol", 1e-6))
 MU0 = float(opts.get("mu0", 1e-5))  # Levenberg-Marquardt's first damping (of the column-scaled system)
 MU_DOWN = float(opts.get("mu_down", 10.0))  # its divisor after an accepted step
@@ -154,7 +156,7 @@ def observe(h, light):
     vv, uu = np.mgrid[0:H:STRIDE, 0:W:STRIDE]
     uu, vv = uu.ravel() + 0.5, vv.ravel() + 0.5
     dirs_cam = pixel_rays_cam(K, uu, vv)
-    for i in idx:
+    for i in idx[::EVERY]:
         R = poses[i][:3, :3]
         C = centres[i]
         d = dirs_cam @ R  # R^T d
@@ -361,4 +363,6 @@ unit[o_l, 0] = unit[o_l + 1, 1] = 1.0
 cov = lu.solve(unit)[o_l:o_l + 2] / np.outer(colnorm[o_l:o_l + 2], colnorm[o_l:o_l + 2])
 sd = np.degrees(np.sqrt(np.linalg.eigvalsh(cov)))
 print(f"light sd from the fit: {sd[0]:.3f} / {sd[1]:.3f} deg (principal axes); k {k_glob:.4f}", flush=True)
+if OUT:
+    np.savez(OUT, light_dir_cam=light, minnaert_k=k_glob, log_gains=logg, light_sd_deg=sd)
 print(f"done in {time.time()-t0:.0f} s")
