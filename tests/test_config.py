@@ -14,7 +14,7 @@ from asteroid_photometry.core.config import SCHEMA_PATH, ConfigError, load_schem
 
 LAWS = ["lambert", "lommel_seeliger", "lunar_lambert", "minnaert", "hapke"]
 SHIPPED_CONFIGS = [
-    REPO / "config" / "config.yaml", REPO / "config" / "test.yaml", REPO / "config" / "tuning.yaml", REPO / "config" / "amica_ablation.yaml",
+    REPO / "config" / "config.yaml", REPO / "config" / "test.yaml", REPO / "config" / "tuning.yaml", REPO / "config" / "tuning_mid.yaml", REPO / "config" / "amica_ablation.yaml",
     REPO / "config" / "conditions_geometry.yaml", REPO / "config" / "oblique_ablation.yaml",
 ]
 
@@ -377,3 +377,22 @@ def test_monte_carlo_off_needs_no_noise_level(test_config):
     assert validate_config(test_config)["noise_monte_carlo"]["realisations"] == 0
     del test_config["noise_monte_carlo"]
     assert validate_config(test_config)["noise_monte_carlo"] == {"level": "amica12", "realisations": 0}
+
+
+# --- the tuning grids -------------------------------------------------------------
+
+
+def _sets(config):
+    return {(a, k, light) for a in config["albedos"] for k in config["minnaert_k"] for light in config["light_angles_deg"]}
+
+
+@pytest.mark.parametrize("name", ["tuning.yaml", "tuning_mid.yaml"])
+def test_tuning_grids_share_no_set_or_seed_with_the_papers(name):
+    """Table 2's defaults are chosen on sets the reported tables do not run: no (albedo, k, light) set and none of
+    the noise, prior or surface-map seeds in common with config.yaml."""
+    paper, tuning = _load(REPO / "config" / "config.yaml"), _load(REPO / "config" / name)
+    assert not _sets(paper) & _sets(tuning)
+    assert tuning["noise_seed"] != paper["noise_seed"]
+    assert tuning["reconstruction"]["prior_seed"] != paper["reconstruction"]["prior_seed"]
+    paper_map_seeds = {m["seed"] for m in paper["surface_maps"]}
+    assert not paper_map_seeds & {m["seed"] for m in tuning["surface_maps"]}
