@@ -1,7 +1,7 @@
 """Prototype, not part of the workflow: a multi-view shape from shading on one mesh, the light fitted with its heights.
 
 An offline experiment on one Table 2 row of a finished run (docs/amica_record.md,
-"A shape from shading on one mesh"). It reads what the image-only path has
+"A shape from shading on one mesh", a first try and a solver that converges). It reads what the image-only path has
 (the registration file's cloud points and normals, the reconstruction, the
 mission images, and the refinement's output for its start: final light, body
 k and image gains), and reads the truth only to print the light's error after
@@ -28,7 +28,8 @@ matrix. Variants: ``warm`` first steps with the light held, ``rigid`` > 0
 holding the heights' six rigid motions at zero.
 
 usage (from the repository root, the venv's python; the defaults are the
-settings of the record's second table):
+settings of docs/amica_record.md, "A shape from shading on one mesh: a solver
+that converges"):
     python prototypes/mesh_sfs.py RUN_RESULTS IMAGING SET PRIORS [key=value ...]
 e.g. python prototypes/mesh_sfs.py runs/tuning/results amica light5_albedo0.15_k1.15 on
 """
