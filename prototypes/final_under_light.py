@@ -47,12 +47,10 @@ inputs = table2.CloudStageInputs(
 )
 stage = table2.read_cloud_stage(inputs, settings, observations=False)
 scoring = read_scoring_truth(res / "shape/model.npz", res / f"truth/mission/{imaging}/{set_id}.json", res / f"truth/render/{condition_rendered_set(set_id, condition)}")
-truth_refined = truth_at_points(scoring, stage.transform, stage.pure.points)
-
 
 
 def scored(stage, light, tag):
-    """The final fit under ``light`` held, scored; returns it."""
+    """The final fit of ``stage`` under ``light`` held, scored against the truth at its points; returns it."""
     held = replace(stage, pure=replace(stage.pure, refined_light_dir_cam=light))
     after, _, _ = table2.estimate_after_refinement(held, "koizumi_lm", float(stage.pure.refined_minnaert_k), table2.final_observations(held, settings))
     truth = truth_at_points(scoring, stage.transform, stage.pure.points)
