@@ -241,6 +241,9 @@ def test_small_run_table2_from_images_alone(small_run):
     amica = everything[everything.imaging == "amica"]
     assert len(amica) == 2 * 2 * 3 and (amica.status == "ok").all() and (amica.refine_accepted > 1000).all()
     amica_paper = amica[amica.method == "koizumi_lm"]
+    # Under the sensor the final fit holds the mesh fit's light (rule mesh_light; k 0.8 is above its gate), on
+    # noise-free images the refinement's.
+    assert (amica_paper.refined_light_source == "mesh").all() and (paper_method.refined_light_source == "refinement").all()
     assert (amica_paper.light_dir_err_deg_final < 2.5).all()
     assert (amica_paper.albedo_err_final.abs() < 0.02).all() and (amica_paper.k_err_final.abs() < 0.04).all()
     # The light's Cramer-Rao deviation for the samples used, from the mission's sensor: present under amica, absent

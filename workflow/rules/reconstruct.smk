@@ -85,6 +85,28 @@ rule refine_cloud:
         "../scripts/refine_cloud.py"
 
 
+# The light of a shape from shading on the cloud's whole surface, every pixel of every image (a stage of its own: a
+# minute or two a set); where it applies (images with a sensor model, the refinement's k not near 0.5) the paper's
+# estimator's final fit holds it instead of the refinement's (docs/table2.md, section 13).
+rule mesh_light:
+    input:
+        registration=rules.register_cloud.output.npz,
+        model=rules.reconstruct.output.model,
+        mission=rules.mission.output.mission,
+        refined=rules.refine_cloud.output.npz,
+    output:
+        npz="results/mesh_light/{imaging}/{set_id}/priors-{priors}.npz",
+    threads: 1
+    log:
+        "logs/mesh_light/{imaging}/{set_id}/priors-{priors}.log",
+    benchmark:
+        "benchmarks/mesh_light/{imaging}/{set_id}/priors-{priors}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/mesh_light.py"
+
+
 # One job per cloud runs every estimator (config estimators, in order) and scores them: the cloud's inputs, its
 # samples of the images and the truth are read once, not once per estimator. Each estimator keeps its own files.
 CLOUD_ESTIMATES = "results/estimates_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz"
@@ -99,6 +121,7 @@ rule estimate_cloud:
         model=rules.reconstruct.output.model,
         mission=rules.mission.output.mission,
         refined=rules.refine_cloud.output.npz,
+        mesh_light=rules.mesh_light.output.npz,
     output:
         estimates=expand(CLOUD_ESTIMATES, method=ESTIMATORS, allow_missing=True),
     params:

@@ -40,7 +40,7 @@ from asteroid_photometry.core.failures import (
 from asteroid_photometry.estimation.fisher import cramer_rao_bounds
 from asteroid_photometry.estimation.registry import run_estimator
 from asteroid_photometry.evaluation import quality
-from asteroid_photometry.from_images import cloud as cloud_lib, reconstruct, refine, register
+from asteroid_photometry.from_images import cloud as cloud_lib, mesh_light, reconstruct, refine, register
 from asteroid_photometry.from_images.purity import PurityTest
 from asteroid_photometry.world.cameras import Intrinsics
 from asteroid_photometry.world.images import mission_navigation, read_mission, read_mission_file
@@ -328,6 +328,78 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
     return replace(second, image_gains=first.image_gains * second.image_gains)
 
 
+# ---------------------------------------------------------------- mesh_light: the light from a shape from shading on one mesh
+
+#: The mesh fit's light replaces the refinement's only where the refinement's k for the body is at least this. Near
+#: k = 0.5 the brightness hardly depends on the surface's slope, and the heights and the light trade against each
+#: other: on the tuning grids (config/tuning.yaml, config/tuning_mid.yaml; none of the paper's sets) the fit took 2 of
+#: 5 k-0.55 rows out of Table 2's bounds and brought every k-0.75 and k-0.95 row within them (docs/table2.md, section 13).
+MESH_LIGHT_MIN_K = 0.65
+
+
+def mesh_light_skipped(mission: dict, pure: refine.PureSampleCloud) -> str | None:
+    """Why the mesh fit is not run on a refined cloud (``None``: it is): noise-free images, or a k below :data:`MESH_LIGHT_MIN_K`."""
+    if not mission.get("sensor"):
+        return "noise-free images (no sensor model): the refinement's pure samples are exact, its light is kept"
+    if not pure.refined_minnaert_k >= MESH_LIGHT_MIN_K:
+        return f"the refinement's k for the body ({pure.refined_minnaert_k:.3f}) is below {MESH_LIGHT_MIN_K}: the shading says too little about the slopes"
+    return None
+
+
+def mesh_light_stage(registration_npz, reconstruction_dir, mission_dir, refined_npz, out_npz) -> None:
+    """The light of a shape from shading on the cloud's surface (``mesh_light.fit_mesh_light``), from the refinement's.
+
+    Writes ``applied`` (whether the final fit is to hold this light instead of
+    the refinement's) and, when applied, the fit's light (camera frame), k,
+    log gains and size; else ``reason``. A set whose refinement failed passes
+    that on; a fit that fails leaves the refinement's light, with the reason.
+    No truth is read.
+    """
+    tick = time.perf_counter()
+    try:
+        with np.load(refined_npz) as data:
+            check_npz(data, refined_npz)
+        pure = refine.PureSampleCloud.load(refined_npz)
+        mission, images = read_mission(mission_dir)
+        reason = mesh_light_skipped(mission, pure)
+        if reason is None:
+            with np.load(registration_npz) as data:
+                check_npz(data, registration_npz)
+                oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+            recon = read_reconstruction(reconstruction_dir)
+            gains = pure.image_gains if pure.image_gains is not None else np.ones(len(images))
+            vertices, triangles = cloud_lib.poisson_surface(oriented)
+            try:
+                fit = mesh_light.fit_mesh_light(
+                    vertices, triangles, recon.camera_centres(), recon.body_to_camera(), recon.intrinsics(), [image / gain for image, gain in zip(images, gains)],
+                    PurityTest(sensor_from_config(mission["sensor"])).sample_variance, pure.refined_light_dir_cam, pure.refined_minnaert_k,
+                    float(mission.get("gain_sigma") or 0.0),
+                )
+            except ValueError as error:
+                reason = f"the mesh fit failed ({error}): the refinement's light is kept"
+    except DataFailure as failure:
+        write_failed_npz(out_npz, record("mesh_light", failure))
+        return
+    if reason is not None:
+        log.info("mesh light not applied: %s", reason)
+        files.savez(out_npz, status=np.str_(OK), applied=False, reason=np.str_(reason))
+        return
+    turn = estimation.angle_between_deg(fit.light_dir_cam, pure.refined_light_dir_cam)
+    log.info("mesh light: %.3f deg from the refinement's, k %.4f (refinement %.4f), %d samples, %d steps, %.0f s", turn, fit.minnaert_k, pure.refined_minnaert_k, fit.n_samples, fit.n_steps, time.perf_counter() - tick)
+    files.savez(
+        out_npz, status=np.str_(OK), applied=True, reason=np.str_(""), light_dir_cam=fit.light_dir_cam, minnaert_k=fit.minnaert_k,
+        log_gains=fit.log_gains, image_indices=fit.image_indices, n_samples=fit.n_samples, n_vertices=fit.n_vertices, n_steps=fit.n_steps, cost=fit.cost,
+        turn_from_refinement_deg=turn, seconds=time.perf_counter() - tick,
+    )
+
+
+def mesh_light_of(path) -> np.ndarray | None:
+    """The light :func:`mesh_light_stage` wrote to ``path`` where it is to be applied, else ``None``; raises its recorded failure."""
+    with np.load(path) as data:
+        check_npz(data, path)
+        return np.asarray(data["light_dir_cam"], float) if bool(data["applied"]) else None
+
+
 def _cloud_estimate(oriented, surface, recon, images, settings: dict):
     """The paper's estimate on the cloud's samples of ``images``: (light, median albedo, median k)."""
     obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
@@ -423,18 +495,19 @@ def plausible_points(result: estimation.FitResult) -> estimation.FitResult:
 class CloudStageInputs:
     """The files the estimates on a cloud come from, none of them truth: the outputs of ``register_stage``
     (``registration_npz``, ``registration_json``), ``reconstruct_stage`` (``reconstruction_dir``) and
-    ``refine_stage`` (``refined_npz``), and the mission set (``mission_dir``)."""
+    ``refine_stage`` (``refined_npz``), ``mesh_light_stage`` (``mesh_light_npz``, optional), and the mission set (``mission_dir``)."""
 
     registration_npz: str | Path
     registration_json: str | Path
     reconstruction_dir: str | Path
     mission_dir: str | Path
     refined_npz: str | Path
+    mesh_light_npz: str | Path | None = None
 
     @classmethod
     def from_rule_input(cls, rule_input) -> CloudStageInputs:
         """The files named as rules ``estimate_cloud`` and ``score_cloud`` name their inputs (``snakemake.input``)."""
-        return cls(rule_input.registration, rule_input.registration_summary, rule_input.model, rule_input.mission, rule_input.refined)
+        return cls(rule_input.registration, rule_input.registration_summary, rule_input.model, rule_input.mission, rule_input.refined, getattr(rule_input, "mesh_light", None))
 
 
 @dataclass(frozen=True)
@@ -620,15 +693,23 @@ def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapp
     one k for the body, estimated from the images (never the true k). A set
     that failed here or before gets, for every estimator, a file with its
     status; an estimator that fails gets its own, and the others still run.
+    ``koizumi_lm``'s final fit holds the light of ``mesh_light_stage`` where
+    that stage applied one (``light_source`` "mesh"), else the refinement's.
     """
     try:
         stage = read_cloud_stage(inputs, settings)
+        held = mesh_light_of(inputs.mesh_light_npz) if inputs.mesh_light_npz is not None else None
     except DataFailure as failure:
         reason = record("estimate_cloud", failure)
         for path in out_npz.values():
             write_failed_npz(path, reason)
         return
     known_k = float(stage.pure.refined_minnaert_k)  # the workflow's own k for the body (refine_stage), for Iwano's baseline
+    light_source = "refinement"
+    if held is not None:
+        # The final fit holds the mesh fit's light (mesh_light_stage) instead of the refinement's.
+        stage = replace(stage, pure=replace(stage.pure, refined_light_dir_cam=held))
+        light_source = "mesh"
     final_obs = final_observations(stage, settings)
     for method, path in out_npz.items():
         try:
@@ -640,7 +721,7 @@ def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapp
             continue
         files.savez(
             path, **fit_arrays(before, "before"), **fit_arrays(after, "after"), **fit_arrays(joint, "joint"),
-            refit_seconds=refit_seconds, known_k=known_k,
+            refit_seconds=refit_seconds, known_k=known_k, light_source=np.str_(light_source if method == "koizumi_lm" else "estimator"),
             after_light_crb_deg=light_bound_deg(stage, after, settings, final_obs if method == "koizumi_lm" else None),
         )
         log.info("%s: light %s before refinement, %s after", method, np.round(before.light_dir_cam, 6).tolist(), np.round(after.light_dir_cam, 6).tolist())

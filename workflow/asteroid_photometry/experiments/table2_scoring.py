@@ -331,6 +331,7 @@ def _score_cloud(estimates_npz, shared: _SharedScoring, method: str, set_id: str
         before, after, joint = (fit_from_arrays(data, prefix) for prefix in FIT_STAGES)
         refit_seconds, known_k = float(data["refit_seconds"]), float(data["known_k"])
         light_crb_deg = float(data["after_light_crb_deg"]) if "after_light_crb_deg" in data.files else float("nan")
+        light_source = str(data["light_source"]) if "light_source" in data.files else None
     stage, scoring, truth = shared.stage(), shared.scoring(), shared.truth()
     # A fit of no point fails the row here.
     row = metrics.summary_row(set_id, before, truth.scoring(truth.light_dir_cam))
@@ -338,6 +339,8 @@ def _score_cloud(estimates_npz, shared: _SharedScoring, method: str, set_id: str
     truth_refined = shared.truth_refined()
     scores, errors = refinement_scores(set_id, priors, method, stage, fits, scoring, truth, truth_refined)
     row.update(scores)
+    if light_source is not None:
+        row["refined_light_source"] = light_source
     report = stage.report
     row.update(
         n_images_registered=report["n_images_registered"], reproj_rms_px=report["reproj_rms_px"],
