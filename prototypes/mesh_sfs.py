@@ -1,5 +1,8 @@
 """Prototype, not part of the workflow: a multi-view shape from shading on one mesh, the light fitted with its heights.
 
+Its settled form is the workflow's rule ``mesh_light`` (``from_images/mesh_light.py``, docs/table2.md, section 13):
+the same model and solver, two casts of three steps, no truth. This script stays for the record's experiments.
+
 An offline experiment on one Table 2 row of a finished run (docs/amica_record.md,
 "A shape from shading on one mesh", a first try and a solver that converges). It reads what the image-only path has
 (the registration file's cloud points and normals, the reconstruction, the

@@ -42,3 +42,19 @@ def sphere_image_closed_form(radiance_factor, light, radius_m, distance_m, image
     b = np.where(lit, radiance_factor(cos_i, cos_o, cos_g), 0.0)
     interior = (lit & (cos_i > 0.2) & (cos_o > 0.2)).all(axis=(2, 3))
     return b.mean(axis=(2, 3)), b.std(axis=(2, 3)), interior
+
+
+def equatorial_poses(n_images: int, distance: float) -> dict:
+    """Cameras on a ring in the body's equator (z up), looking at the centre; OpenCV axes: body-to-camera 4x4 by index."""
+    poses = {}
+    for index in range(n_images):
+        angle = 2 * np.pi * index / n_images
+        centre = distance * np.array([np.cos(angle), np.sin(angle), 0.0])
+        forward = -centre / distance
+        down = np.array([0.0, 0.0, -1.0])
+        right = np.cross(down, forward)
+        rotation = np.stack([right, down, forward])
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rotation, -rotation @ centre
+        poses[index] = pose
+    return poses

@@ -8,6 +8,7 @@ from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, mesh_light_
 from asteroid_photometry.from_images import mesh_light
 from asteroid_photometry.from_images.refine import PureSampleCloud
 from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
+from synthetic_helpers import equatorial_poses
 
 
 def _sphere(subdivisions: int):
@@ -18,17 +19,8 @@ def _sphere(subdivisions: int):
 
 def _ring(n_images: int, distance: float):
     """Cameras on the equator looking at the origin: body-to-camera poses and centres, by image index."""
-    poses, centres = {}, {}
-    for i, phi in enumerate(np.linspace(0, 2 * np.pi, n_images, endpoint=False)):
-        centre = distance * np.array([np.cos(phi), np.sin(phi), 0.0])
-        z = -centre / distance
-        y = np.array([0.0, 0.0, -1.0])
-        x = np.cross(y, z)
-        R = np.array([x, y, z])
-        pose = np.eye(4)
-        pose[:3, :3], pose[:3, 3] = R, -R @ centre
-        poses[i], centres[i] = pose, centre
-    return poses, centres
+    poses = equatorial_poses(n_images, distance)
+    return poses, {i: -pose[:3, :3].T @ pose[:3, 3] for i, pose in poses.items()}
 
 
 def _light(angle_deg: float):

@@ -14,6 +14,7 @@ import pytest
 from asteroid_photometry import estimation
 from asteroid_photometry.from_images import cloud, refine
 from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
+from synthetic_helpers import equatorial_poses
 
 o3d = pytest.importorskip("open3d")
 
@@ -36,18 +37,7 @@ def _polyhedron():
 
 def _equatorial_poses(n_images=18, distance=6 * RADIUS):
     """Cameras on a ring in the body's equator (z up), looking at the centre; OpenCV axes."""
-    poses = {}
-    for index in range(n_images):
-        angle = 2 * np.pi * index / n_images
-        centre = distance * np.array([np.cos(angle), np.sin(angle), 0.0])
-        forward = -centre / distance
-        down = np.array([0.0, 0.0, -1.0])
-        right = np.cross(down, forward)
-        rotation = np.stack([right, down, forward])
-        pose = np.eye(4)
-        pose[:3, :3], pose[:3, 3] = rotation, -rotation @ centre
-        poses[index] = pose
-    return poses
+    return equatorial_poses(n_images, distance)
 
 
 def _render(vertices, triangles, normals, poses):
