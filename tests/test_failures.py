@@ -327,7 +327,9 @@ def test_one_estimators_failure_on_a_cloud_leaves_the_others(tmp_path, monkeypat
     monkeypatch.setattr(table2, "run_estimator", failing_iwano)
     methods = ("varpro", "iwano_linear", "koizumi_lm")  # the failing one between the others
     estimates = {method: tmp_path / f"{method}.npz" for method in methods}
-    table2.estimate_cloud_stage(None, RECONSTRUCTION, estimates)
+    # The stage is read by read_cloud_stage (replaced above); no mesh light file: the refinement's light is held.
+    inputs = table2.CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", tmp_path / "mission", tmp_path / "refined.npz")
+    table2.estimate_cloud_stage(inputs, RECONSTRUCTION, estimates)
     monkeypatch.undo()
     with np.load(estimates["iwano_linear"]) as data:
         assert str(data["status"]) == "failed" and str(data["reason"]) == "estimate_cloud: no k for the body"
@@ -338,7 +340,6 @@ def test_one_estimators_failure_on_a_cloud_leaves_the_others(tmp_path, monkeypat
 
     # Scored where the registration failed: the failed estimator keeps its own reason, the others get the registration's.
     (tmp_path / "reg.json").write_text(json.dumps({"status": "failed", "reason": "register: no unambiguous registration", "registration_ok": False}))
-    inputs = table2.CloudStageInputs(tmp_path / "reg.npz", tmp_path / "reg.json", tmp_path / "model", tmp_path / "mission", tmp_path / "refined.npz")
     rows = {method: tmp_path / f"{method}.json" for method in methods}
     table2_scoring.score_cloud_stage(
         inputs, table2_scoring.ScoringInputs(estimates, tmp_path / "no_shape.npz", tmp_path / "truth.json", tmp_path / "render"),

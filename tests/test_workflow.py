@@ -44,7 +44,7 @@ def test_dry_run_of_the_full_config(tmp_path):
     assert jobs["mission"] == jobs["match_features"] == missions  # one set of features and matches for both prior settings
     assert jobs["reconstruct"] == jobs["refine_cloud"] == missions * 2  # with and without priors
     # One job per cloud runs (and one scores) all three estimators.
-    assert jobs["estimate_cloud"] == jobs["score_cloud"] == missions * 2
+    assert jobs["mesh_light"] == jobs["estimate_cloud"] == jobs["score_cloud"] == missions * 2
     assert jobs["noise_monte_carlo"] == 16
     assert jobs["geometry_sensitivity"] == 16
     # The shape model ships with the workflow: a clone needs no network.
@@ -81,7 +81,7 @@ def test_dry_run_with_the_optional_parts_off_plans_table1_only(tmp_path):
     assert run.returncode == 0, run.stdout + run.stderr
     jobs = _job_counts(run.stdout)
     assert jobs["render"] == 16 and jobs["fit"] == 16 and jobs["tabulate_table1"] == 1
-    for absent in ("add_noise", "plot_noise", "tabulate_sweep", "noise_monte_carlo", "match_features", "reconstruct", "refine_cloud", "tabulate_table2", "plot_table2", "plot_error_map", "geometry_sensitivity", "render_model_set", "tabulate_model_mismatch"):
+    for absent in ("add_noise", "plot_noise", "tabulate_sweep", "noise_monte_carlo", "match_features", "reconstruct", "refine_cloud", "mesh_light", "tabulate_table2", "plot_table2", "plot_error_map", "geometry_sensitivity", "render_model_set", "tabulate_model_mismatch"):
         assert absent not in jobs, absent
 
 
@@ -137,7 +137,7 @@ def test_small_run_writes_every_output(small_run):
     runtime = pd.read_csv(small_run / "results/tables/runtime.csv")
     assert set(runtime.stage) == {
         "render", "add_noise", "observation_geometry", "observe", "fit", "match_features", "reconstruct", "register_cloud", "refine_cloud", "mission",
-        "estimate_cloud", "score_cloud", "noise_monte_carlo", "geometry_sensitivity", "render_model_set", "fit_model_set", "phase_sweep_set",
+        "mesh_light", "estimate_cloud", "score_cloud", "noise_monte_carlo", "geometry_sensitivity", "render_model_set", "fit_model_set", "phase_sweep_set",
     }
     for sweep in ("noise", "surface_maps"):
         assert (small_run / f"results/tables/{sweep}.md").stat().st_size > 0
