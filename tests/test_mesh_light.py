@@ -132,3 +132,22 @@ def test_gate_skips_noise_free_images_and_a_k_near_one_half():
     assert "below" in mesh_light_skipped(sensor, _pure(MESH_LIGHT_MIN_K - 0.01))
     assert mesh_light_skipped(sensor, _pure(MESH_LIGHT_MIN_K + 0.01)) is None
     assert "below" in mesh_light_skipped(sensor, _pure(float("nan")))
+
+
+def test_scaled_normal_is_the_damped_system_of_the_scaled_jacobian():
+    """The step's matrix, assembled as S (J'J + P'P) S with the damping on its diagonal, is (JS)'(JS) + (PS)'(PS) + damping I."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(3)
+    n = 40
+    J = sp.random(500, n, density=0.1, random_state=4, format="csr")
+    P = sp.random(60, n, density=0.05, random_state=5, format="csr")
+    P = sp.vstack([P, sp.identity(n, format="csr") * 0.5]).tocsr()
+    scale = rng.uniform(0.5, 2.0, n)
+    gradient = rng.normal(size=n)
+    normal = mesh_light._scaled_normal(J, (P.T @ P).tocsr(), scale)
+    S = sp.diags(scale)
+    expected = ((J @ S).T @ (J @ S) + (P @ S).T @ (P @ S)).toarray() + 1e-3 * np.eye(n)
+    np.testing.assert_allclose(mesh_light._solve(normal, gradient, 1e-3), np.linalg.solve(expected, gradient), rtol=1e-9, atol=1e-12)
+    # The damping is added to a copy: the matrix is the same for the next attempt.
+    np.testing.assert_allclose(normal.toarray() + 1e-3 * np.eye(n), expected, rtol=1e-12, atol=1e-14)

@@ -73,7 +73,7 @@ class MeshLightSettings:
     min_cos_emission: float = 0.2
     min_cos_incidence: float = 0.1
     outer: int = 2
-    inner: int = 3
+    inner: int = 4
     robust: float = 3.0
     margin: int = 1
     damping: float = 1e-5
@@ -310,12 +310,10 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
             cost = 0.5 * (r @ r + prior_r @ prior_r)
             colnorm = np.sqrt(np.bincount(samples.columns.ravel(), weights=J.data**2, minlength=problem.n_par) + problem.prior_colsq)
             colnorm[colnorm == 0] = 1.0
-            scale = sp.diags(1 / colnorm)
             gradient = -(J.T @ r + problem.prior.T @ prior_r) / colnorm
-            Js = J @ scale
-            Ps = problem.prior @ scale
+            normal = _scaled_normal(J, problem.prior_normal, 1 / colnorm)
             for _attempt in range(MAX_ATTEMPTS):
-                y = _solve(Js, Ps, gradient, damping)
+                y = _solve(normal, gradient, damping)
                 trial = state.stepped(problem, y / colnorm)
                 rn, prn, _ = _residuals(problem, samples, trial, rotations, jacobian=False)
                 cost_new = 0.5 * (rn @ rn + prn @ prn)
@@ -329,8 +327,19 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
     return MeshLight(state.light, float(state.k), state.log_gains, indices, n_samples, problem.nv, steps, np.array(costs))
 
 
-def _solve(Js, Ps, gradient, damping: float):
-    """The damped step of the column-scaled system, (Js'Js + Ps'Ps + damping I) y = gradient, by a sparse LU."""
-    normal = (Js.T @ Js + Ps.T @ Ps + damping * sp.identity(Js.shape[1], format="csr")).tocsc()
+def _scaled_normal(J, prior_normal, scale) -> sp.csc_matrix:
+    """The column-scaled normal matrix S (J'J + P'P) S, S = diag(``scale``), in CSC with every diagonal entry stored."""
+    normal = (J.T @ J + prior_normal + sp.identity(J.shape[1], format="csr") * 0.0).tocsc()
+    normal.sort_indices()
+    # Scaled in place: each stored entry (i, j) by scale[i] * scale[j] (CSC: i is the row index, j the column).
+    columns = np.repeat(np.arange(normal.shape[1]), np.diff(normal.indptr))
+    normal.data *= scale[normal.indices] * scale[columns]
+    return normal
+
+
+def _solve(normal: sp.csc_matrix, gradient, damping: float):
+    """The damped step of the column-scaled system, (normal + damping I) y = gradient, by a sparse LU."""
+    damped = normal.copy()
+    damped.setdiag(damped.diagonal() + damping)
     # COLAMD's ordering: more fill than a minimum degree's, but factored in less than half the time here.
-    return splu(normal, permc_spec="COLAMD", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True)).solve(gradient)
+    return splu(damped, permc_spec="COLAMD", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True)).solve(gradient)
