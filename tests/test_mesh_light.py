@@ -8,6 +8,7 @@ from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, mesh_light_
 from asteroid_photometry.from_images import mesh_light
 from asteroid_photometry.from_images.refine import PureSampleCloud
 from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
+from asteroid_photometry.world.degrade import apply_psf, psf_kernel
 from synthetic_helpers import equatorial_poses
 
 
@@ -151,3 +152,41 @@ def test_scaled_normal_is_the_damped_system_of_the_scaled_jacobian():
     np.testing.assert_allclose(mesh_light._solve(normal, gradient, 1e-3), np.linalg.solve(expected, gradient), rtol=1e-9, atol=1e-12)
     # The damping is added to a copy: the matrix is the same for the next attempt.
     np.testing.assert_allclose(normal.toarray() + 1e-3 * np.eye(n), expected, rtol=1e-12, atol=1e-14)
+
+
+def test_blur_matrix_is_the_psf_over_the_support():
+    """Each sample's row of the blur matrix weighs its support pixels as the PSF blurs an image in which every other
+    pixel (sky, shadow) is black."""
+    rng = np.random.default_rng(3)
+    shape = (2, 12, 10)
+    values = rng.uniform(0.5, 1.5, shape)
+    support = np.flatnonzero(rng.uniform(size=values.size) < 0.7)
+    samples = rng.choice(support, 40, replace=False)
+    psf = psf_kernel(1.5, radius_px=2)
+    blur = mesh_light._blur_matrix(psf, samples, support, shape)
+    shown = np.zeros(values.size)
+    shown[support] = values.ravel()[support]
+    expected = np.concatenate([apply_psf(image, psf).ravel() for image in shown.reshape(shape)])[samples]
+    np.testing.assert_allclose(blur @ values.ravel()[support], expected, rtol=1e-12, atol=1e-12)
+
+
+def test_the_blurred_model_fits_blurred_images_better():
+    """At the true light, k and albedo, the model blurred by the camera's PSF leaves a smaller misfit to PSF-blurred
+    images of a sphere than the sharp model does (at the limb and the shadows above all)."""
+    intrinsics = Intrinsics(96, 96, 180.0, 48.0, 48.0)
+    poses, centres = _ring(4, 5.0)
+    light = _light(30.0)
+    psf = psf_kernel(1.5, radius_px=2)
+    images = [apply_psf(image, psf_kernel(1.5)) for image in _render_sphere(poses, centres, intrinsics, light, 0.3, 0.9, noise=0.0, seed=4)]
+    vertices, triangles, normals = _sphere(40)
+    settings = mesh_light.MeshLightSettings(robust=0.0, floor=0.01)
+    rotations = np.array([poses[i][:3, :3] for i in sorted(poses)])
+    centre_array = np.array([centres[i] for i in sorted(poses)])
+    problem = mesh_light._MeshProblem(vertices, triangles, normals, 1 / 36.0, 4, 0.0, settings)
+    state = mesh_light._State(np.zeros(problem.nv), np.full(problem.ncell, np.log(0.3)), 0.9, np.zeros(problem.ncell), light, np.zeros(4))
+    misfit = {}
+    for name, kernel in (("sharp", None), ("blurred", psf)):
+        samples = mesh_light._cast(problem, state.h, light, rotations, centre_array, intrinsics, images, lambda value: np.zeros_like(value), kernel)
+        r, _, _ = mesh_light._residuals(problem, samples, state, rotations, jacobian=False)
+        misfit[name] = np.sqrt(np.mean(r**2)) * settings.floor
+    assert misfit["blurred"] < 0.6 * misfit["sharp"], misfit

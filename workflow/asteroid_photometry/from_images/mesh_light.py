@@ -143,17 +143,63 @@ class _MeshProblem:
 
 
 @dataclass
-class _Samples:
+class _Pixels:
+    """Pixels that see the surface: the face each sees, its image (position among the registered images) and the
+    direction towards the camera (unit, body frame)."""
+
     face: np.ndarray
-    image: np.ndarray  # position among the registered images
-    view: np.ndarray  # unit, towards the camera, body frame
-    log_brightness: np.ndarray
-    sigma: np.ndarray
+    image: np.ndarray
+    view: np.ndarray
+
+
+@dataclass
+class _Samples(_Pixels):
+    log_brightness: np.ndarray = None
+    sigma: np.ndarray = None
     columns: np.ndarray | None = None  # (m, 9) the Jacobian's columns of each sample
+    # Under a point spread function: every lit pixel that sees the surface (``support``), and the blur as a matrix,
+    # a sample's value the PSF-weighted sum of its support pixels' brightness (``blur``, samples x support).
+    support: _Pixels | None = None
+    blur: sp.csr_matrix | None = None
 
 
-def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intrinsics, images, variance) -> _Samples:
-    """Every lit, seen pixel ``margin`` pixels inside the silhouette and the cast shadows."""
+def _columns(problem: _MeshProblem, face, image_pos) -> np.ndarray:
+    """The Jacobian's nine columns of each pixel seeing ``face`` in image ``image_pos``."""
+    cell = problem.cell[face]
+    return np.column_stack([
+        problem.F[face], problem.o_a + cell, np.full(len(face), problem.o_k), problem.o_dk + cell,
+        np.full(len(face), problem.o_l), np.full(len(face), problem.o_l + 1), problem.o_g + image_pos,
+    ])
+
+
+def _blur_matrix(psf: np.ndarray, sample_pixel, support_pixel, shape) -> sp.csr_matrix:
+    """The PSF as a (samples x support) matrix: row i holds the weight of each support pixel in sample i's value.
+
+    Pixels are flat indices into the stack of images of ``shape`` (images, height, width); a neighbour outside its
+    image or not in the support (sky, shadow, the unlit side) adds nothing."""
+    n_images, height, width = shape
+    lookup = np.full(n_images * height * width, -1, dtype=np.int64)
+    lookup[support_pixel] = np.arange(len(support_pixel))
+    image, rest = np.divmod(sample_pixel, height * width)
+    v, u = np.divmod(rest, width)
+    radius = psf.shape[0] // 2
+    rows, cols, vals = [], [], []
+    for dv in range(-radius, radius + 1):
+        for du in range(-radius, radius + 1):
+            vv, uu = v + dv, u + du
+            inside = (vv >= 0) & (vv < height) & (uu >= 0) & (uu < width)
+            target = np.where(inside, lookup[image * height * width + np.clip(vv, 0, height - 1) * width + np.clip(uu, 0, width - 1)], -1)
+            hit = np.flatnonzero(target >= 0)
+            rows.append(hit)
+            cols.append(target[hit])
+            vals.append(np.full(len(hit), psf[dv + radius, du + radius]))
+    rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(len(sample_pixel), len(support_pixel)))
+
+
+def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intrinsics, images, variance, psf=None) -> _Samples:
+    """Every lit, seen pixel ``margin`` pixels inside the silhouette and the cast shadows; under a PSF (``psf``,
+    a normalised kernel) with every lit pixel that sees the surface and the blur from them to the samples."""
     import open3d as o3d
 
     settings = problem.settings
@@ -166,7 +212,7 @@ def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intri
     vv, uu = vv.ravel(), uu.ravel()
     dirs_cam = pixel_rays_cam(intrinsics, uu + 0.5, vv + 0.5)
     kernel = np.ones((3, 3), bool)
-    parts = []
+    parts, support = [], []
     for position, (R, C, image) in enumerate(zip(rotations, centres, images)):
         d = dirs_cam @ R
         hit = scene.cast_rays(o3d.core.Tensor(np.hstack([np.broadcast_to(C, d.shape), d]).astype(np.float32)))
@@ -184,15 +230,17 @@ def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intri
         inside = binary_erosion(on.reshape(height, width), kernel, iterations=settings.margin) & binary_erosion(lit.reshape(height, width), kernel, iterations=settings.margin)
         value = image[vv, uu]
         keep = inside.ravel() & (cos_i >= settings.min_cos_incidence) & (cos_e >= settings.min_cos_emission) & (value > 0)
-        parts.append((face[keep], np.full(int(keep.sum()), position), -d[keep], value[keep]))
-    face, image_pos, view, value = (np.concatenate(p) for p in zip(*parts))
+        parts.append((face[keep], np.full(int(keep.sum()), position), -d[keep], value[keep], position * height * width + np.flatnonzero(keep)))
+        if psf is not None:
+            seen = np.flatnonzero(lit)
+            support.append((face[seen], np.full(len(seen), position), -d[seen], position * height * width + seen))
+    face, image_pos, view, value, pixel = (np.concatenate(p) for p in zip(*parts))
     sigma = np.sqrt(variance(value) / value**2 + settings.floor**2)
-    samples = _Samples(face, image_pos, view, np.log(value), sigma)
-    cell = problem.cell[face]
-    samples.columns = np.column_stack([
-        problem.F[face], problem.o_a + cell, np.full(len(face), problem.o_k), problem.o_dk + cell,
-        np.full(len(face), problem.o_l), np.full(len(face), problem.o_l + 1), problem.o_g + image_pos,
-    ])
+    samples = _Samples(face, image_pos, view, np.log(value), sigma, _columns(problem, face, image_pos))
+    if psf is not None:
+        s_face, s_image, s_view, s_pixel = (np.concatenate(p) for p in zip(*support))
+        samples.support = _Pixels(s_face, s_image, s_view)
+        samples.blur = _blur_matrix(psf, pixel, s_pixel, (len(images), height, width))
     return samples
 
 
@@ -217,22 +265,53 @@ class _State:
         )
 
 
+def _shading(problem: _MeshProblem, state: _State, n, pixels: _Pixels, rotations):
+    """The log brightness the state gives each of ``pixels`` (face normals ``n``), whether both its cosines are above
+    the clamp, and the parts its derivatives need."""
+    light_body = np.einsum("nji,j->ni", rotations, state.light)[pixels.image]
+    nf = n[pixels.face]
+    cos_i = np.einsum("ij,ij->i", nf, light_body)
+    cos_e = np.einsum("ij,ij->i", nf, pixels.view)
+    ok = (cos_i > COS_CLAMP) & (cos_e > COS_CLAMP)
+    cos_i, cos_e = np.maximum(cos_i, COS_CLAMP), np.maximum(cos_e, COS_CLAMP)
+    cell = problem.cell[pixels.face]
+    k = state.k + state.dk[cell]
+    log_ie = np.log(cos_i) + np.log(cos_e)
+    model = state.log_albedo[cell] + state.log_gains[pixels.image] + k * log_ie - np.log(cos_e)
+    return model, ok, (nf, light_body, cos_i, cos_e, k, log_ie)
+
+
+def _model_rows(problem: _MeshProblem, state: _State, dn, pixels: _Pixels, parts, rotations, scale, columns) -> sp.csr_matrix:
+    """The derivatives of the pixels' log brightness (``_shading``) by the unknowns, each row times ``scale`` (CSR, 9 per row)."""
+    nf, light_body, cos_i, cos_e, k, log_ie = parts
+    g = (k / cos_i)[:, None] * light_body + ((k - 1) / cos_e)[:, None] * pixels.view
+    data = np.empty((len(scale), 9))
+    data[:, :3] = np.einsum("mj,mvj->mv", g, dn[pixels.face]) * scale[:, None]
+    data[:, 3] = scale
+    data[:, 4] = scale * log_ie
+    data[:, 5] = scale * log_ie
+    e1, e2 = _light_basis(state.light)
+    for j, e in enumerate((e1, e2)):
+        e_body = np.einsum("nji,j->ni", rotations, e)[pixels.image]
+        data[:, 6 + j] = scale * k * np.einsum("ij,ij->i", nf, e_body) / cos_i
+    data[:, 8] = scale
+    m = len(scale)
+    return sp.csr_matrix((data.ravel(), columns.ravel(), np.arange(0, 9 * m + 1, 9)), shape=(m, problem.n_par))
+
+
 def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotations, jacobian: bool):
-    """Weighted residuals of the samples and of the priors; with ``jacobian`` the samples' Jacobian (CSR, 9 per row)."""
+    """Weighted residuals of the samples and of the priors; with ``jacobian`` the samples' Jacobian (CSR, 9 per row).
+
+    Under a PSF (``samples.blur``) a sample's model is the blurred brightness of the pixels around it, and its
+    Jacobian that of its own pixel's: the ratio of the blurred to the sharp value held within a step (the normal
+    matrix keeps its size and sparsity). The exact gradient through the blur, with this matrix, stalled (docs/amica_record.md).
+    """
     settings = problem.settings
     P, a, b, c, cross, norm = problem.surface(state.h)
     n = cross / norm[:, None]
-    f, ii = samples.face, samples.image
-    light_body = np.einsum("nji,j->ni", rotations, state.light)[ii]
-    nf = n[f]
-    cos_i = np.einsum("ij,ij->i", nf, light_body)
-    cos_e = np.einsum("ij,ij->i", nf, samples.view)
-    ok = (cos_i > COS_CLAMP) & (cos_e > COS_CLAMP)
-    cos_i, cos_e = np.maximum(cos_i, COS_CLAMP), np.maximum(cos_e, COS_CLAMP)
-    cell = problem.cell[f]
-    k = state.k + state.dk[cell]
-    log_ie = np.log(cos_i) + np.log(cos_e)
-    model = state.log_albedo[cell] + state.log_gains[ii] + k * log_ie - np.log(cos_e)
+    model, ok, parts = _shading(problem, state, n, samples, rotations)
+    if samples.blur is not None:
+        model = np.log(samples.blur @ np.exp(_shading(problem, state, n, samples.support, rotations)[0]))
     r = np.where(ok, (samples.log_brightness - model) / samples.sigma, 0.0)
     weight = 1.0 / np.sqrt(1.0 + (r / settings.robust) ** 2) if settings.robust > 0 else np.ones_like(r)
     x_prior = np.concatenate([state.h, np.zeros(2 * problem.ncell + 3), state.log_gains])
@@ -247,24 +326,12 @@ def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotation
     Fv = problem.F
     tangent = lambda v: (v - np.einsum("ij,ij->i", v, n)[:, None] * n) / norm[:, None]  # noqa: E731
     dn = np.stack([tangent(np.cross(D[Fv[:, 0]], b - c)), tangent(np.cross(D[Fv[:, 1]], c - a)), tangent(np.cross(b - a, D[Fv[:, 2]]))], axis=1)  # (nf, 3, 3)
-    g = (k / cos_i)[:, None] * light_body + ((k - 1) / cos_e)[:, None] * samples.view
-    data = np.empty((len(r), 9))
-    data[:, :3] = np.einsum("mj,mvj->mv", g, dn[f]) * s[:, None]
-    data[:, 3] = s
-    data[:, 4] = s * log_ie
-    data[:, 5] = s * log_ie
-    e1, e2 = _light_basis(state.light)
-    for j, e in enumerate((e1, e2)):
-        e_body = np.einsum("nji,j->ni", rotations, e)[ii]
-        data[:, 6 + j] = s * k * np.einsum("ij,ij->i", nf, e_body) / cos_i
-    data[:, 8] = s
-    m = len(r)
-    J = sp.csr_matrix((data.ravel(), samples.columns.ravel(), np.arange(0, 9 * m + 1, 9)), shape=(m, problem.n_par))
+    J = _model_rows(problem, state, dn, samples, parts, rotations, s, samples.columns)
     return r * weight, prior_r, J
 
 
 def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: dict, intrinsics: Intrinsics, images, variance, start_light_cam, start_k: float,
-                   gain_sigma: float, settings: MeshLightSettings = MeshLightSettings()) -> MeshLight:
+                   gain_sigma: float, settings: MeshLightSettings = MeshLightSettings(), psf: np.ndarray | None = None) -> MeshLight:
     """The light of a shape from shading on the subdivided surface ``vertices``/``triangles`` (the cloud's Poisson surface).
 
     ``images``: the mission's images, already divided by any gains the start
@@ -272,7 +339,8 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
     noise variance (the sensor model), ``None`` for noise-free images (only
     ``settings.floor``); ``start_light_cam``, ``start_k``: where to start (the
     refinement's light and k); ``gain_sigma``: the mission's stated per-image
-    calibration scatter (0: gains held at one).
+    calibration scatter (0: gains held at one); ``psf``: the camera's point spread function (a normalised kernel of
+    odd side), by which the model is blurred, or ``None`` (no blur).
     """
     import open3d as o3d
 
@@ -295,7 +363,7 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
     log.info("mesh: %d vertices, %d faces (x%d), footprint %.3g, %d cells", problem.nv, len(problem.F), 4**n_sub, footprint, problem.ncell)
     damping, costs, steps, n_samples = settings.damping, [], 0, 0
     for outer in range(settings.outer):
-        samples = _cast(problem, state.h, state.light, rotations, centres, intrinsics, used, variance)
+        samples = _cast(problem, state.h, state.light, rotations, centres, intrinsics, used, variance, psf)
         n_samples = len(samples.face)
         if n_samples < problem.n_par:
             raise ValueError(f"the mesh shows only {n_samples} usable pixels for {problem.n_par} unknowns")

@@ -1,0 +1,95 @@
+"""Prototype, not part of the workflow: where the mesh fit's light error comes from, the truth put in one part at a time.
+
+An offline experiment on Table 2 rows of a finished run (docs/amica_record.md, "Where the mesh fit's light error at
+light 0 comes from"). For each row it runs the workflow's mesh fit (``from_images.mesh_light.fit_mesh_light``, its
+default settings) from the refinement's light and k, as rule ``mesh_light`` does, in these variants:
+
+- ``base``: the cloud's Poisson surface and the reconstructed cameras (what the workflow does);
+- ``truecam``: that surface moved into the body frame by the registration, seen through the true cameras;
+- ``trueshape``: the shape model's own facets through the true cameras;
+- ``trueshapegain``: as ``trueshape``, the images divided by the true calibration gains, the gains then held;
+- any of them with ``_psf``: the model blurred by the mission's stated PSF (``fit_mesh_light``'s ``psf``).
+
+It reads the truth (the mission set's truth file, the shape model) for the oracles and to print each light's error:
+never use it inside the workflow.
+
+    python prototypes/mesh_light_oracle.py RUN_DIR CONDITION VARIANTS SET:PRIORS...
+    python prototypes/mesh_light_oracle.py runs/tuning_mid amica base,trueshape,trueshape_psf light0_albedo0.3_k0.75:on
+"""
+
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "workflow"))
+
+from asteroid_photometry.experiments import table2  # noqa: E402
+from asteroid_photometry.from_images import cloud as cloud_lib, mesh_light, register  # noqa: E402
+from asteroid_photometry.from_images.purity import PurityTest  # noqa: E402
+from asteroid_photometry.world.cameras import Intrinsics  # noqa: E402
+from asteroid_photometry.world.degrade import psf_kernel  # noqa: E402
+from asteroid_photometry.world.noise import sensor_from_config  # noqa: E402
+
+
+def angle_deg(a, b) -> float:
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
+
+
+def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str], shape: dict, settings: dict) -> str:
+    results = run / "results"
+    inputs = table2.CloudStageInputs(
+        results / f"registration/{condition}/{set_id}/priors-{priors}.npz", results / f"registration/{condition}/{set_id}/priors-{priors}.json",
+        results / f"reconstruction/{condition}/{set_id}/priors-{priors}", results / f"mission/{condition}/{set_id}",
+        results / f"refined_cloud/{condition}/{set_id}/priors-{priors}.npz",
+    )
+    stage = table2.read_cloud_stage(inputs, settings, observations=False)
+    truth = json.loads((results / f"truth/mission/{condition}/{set_id}.json").read_text())
+    true_light = np.asarray(truth["light_dir_cam"], float)
+    pure = stage.pure
+    gains = pure.image_gains if pure.image_gains is not None else np.ones(len(stage.images))
+    vertices, triangles = cloud_lib.poisson_surface(stage.oriented)
+    poses, centres = stage.recon.body_to_camera(), stage.recon.camera_centres()
+    true_poses = {i: np.asarray(truth["images"][i]["body_to_camera"], float) for i in poses}
+    true_centres = {i: -pose[:3, :3].T @ pose[:3, 3] for i, pose in true_poses.items()}
+    variance = PurityTest(sensor_from_config(stage.mission["sensor"])).sample_variance
+    cells = [f"start {angle_deg(pure.refined_light_dir_cam, true_light):.3f}"]
+    for variant in variants:
+        name, psf = variant.removesuffix("_psf"), psf_kernel(stage.mission["psf_fwhm_px"], radius_px=2) if variant.endswith("_psf") else None
+        images, gain_sigma = [image / gain for image, gain in zip(stage.images, gains)], float(stage.mission.get("gain_sigma") or 0.0)
+        if name == "base":
+            geometry = (vertices, triangles, centres, poses, stage.recon.intrinsics())
+        elif name == "truecam":
+            geometry = (register.transform_points(stage.transform, vertices), triangles, true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
+        elif name in ("trueshape", "trueshapegain"):
+            geometry = (shape["vertices_m"], shape["faces"], true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
+            if name == "trueshapegain":
+                images, gain_sigma = [image / gain for image, gain in zip(stage.images, truth["gains"])], 0.0
+        else:
+            raise SystemExit(f"unknown variant {variant!r}: base, truecam, trueshape, trueshapegain, each optionally with _psf")
+        tick = time.perf_counter()
+        fit = mesh_light.fit_mesh_light(*geometry, images, variance, pure.refined_light_dir_cam, pure.refined_minnaert_k, gain_sigma, psf=psf)
+        cells.append(f"{variant} {angle_deg(fit.light_dir_cam, true_light):.3f} (y {fit.light_dir_cam[1]:+.4f}) k {fit.minnaert_k:.3f} {time.perf_counter() - tick:.0f}s")
+    return f"{set_id}:{priors} " + " | ".join(cells)
+
+
+def main() -> None:
+    if len(sys.argv) < 5:
+        raise SystemExit(__doc__)
+    logging.disable(logging.WARNING)
+    run, condition, variants = Path(sys.argv[1]), sys.argv[2], sys.argv[3].split(",")
+    config = yaml.safe_load(Path("config/config.yaml").read_text())
+    settings = table2.stage_settings(config["reconstruction"], "cloud")
+    with np.load(run / "results/shape/model.npz") as data:
+        shape = {key: data[key] for key in ("vertices_m", "faces")}
+    for spec in sys.argv[4:]:
+        set_id, priors = spec.split(":")
+        print(row(run, condition, set_id, priors, variants, shape, settings), flush=True)
+
+
+if __name__ == "__main__":
+    main()
