@@ -337,6 +337,15 @@ def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -
 MESH_LIGHT_MIN_K = 0.65
 
 
+#: The octree depth of the cloud's Poisson surface the mesh fit starts from (the refinement samples one of depth 7,
+#: ``cloud.poisson_surface``'s default). A finer surface follows the cloud's curvature more closely where the
+#: coarser one flattens it (its normals at high latitudes 1.5 to 3 degrees towards the equator on tuning_mid's rows);
+#: at light 0 the light leans out of the camera ring's plane with that error. Chosen on config/tuning_mid.yaml's
+#: `amica` rows (none of the paper's sets): the worst light 0.885 degrees against 0.972, the four light-0, k-0.75
+#: rows 0.09 to 0.18 degrees nearer (docs/amica_record.md, "Where the mesh fit's light error at light 0 comes from").
+MESH_LIGHT_POISSON_DEPTH = 8
+
+
 def mesh_light_skipped(mission: dict, pure: refine.PureSampleCloud) -> str | None:
     """Why the mesh fit is not run on a refined cloud (``None``: it is): noise-free images, or a k below :data:`MESH_LIGHT_MIN_K`."""
     if not mission.get("sensor"):
@@ -368,7 +377,7 @@ def mesh_light_stage(registration_npz, reconstruction_dir, mission_dir, refined_
                 oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
             recon = read_reconstruction(reconstruction_dir)
             gains = pure.image_gains if pure.image_gains is not None else np.ones(len(images))
-            vertices, triangles = cloud_lib.poisson_surface(oriented)
+            vertices, triangles = cloud_lib.poisson_surface(oriented, depth=MESH_LIGHT_POISSON_DEPTH)
             try:
                 fit = mesh_light.fit_mesh_light(
                     vertices, triangles, recon.camera_centres(), recon.body_to_camera(), recon.intrinsics(), [image / gain for image, gain in zip(images, gains)],
