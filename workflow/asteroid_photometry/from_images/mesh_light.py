@@ -153,23 +153,17 @@ class _Pixels:
 
 
 @dataclass
-class _Samples(_Pixels):
-    log_brightness: np.ndarray = None
-    sigma: np.ndarray = None
+class _Samples:
+    face: np.ndarray
+    image: np.ndarray  # position among the registered images
+    view: np.ndarray  # unit, towards the camera, body frame
+    log_brightness: np.ndarray
+    sigma: np.ndarray
     columns: np.ndarray | None = None  # (m, 9) the Jacobian's columns of each sample
     # Under a point spread function: every lit pixel that sees the surface (``support``), and the blur as a matrix,
     # a sample's value the PSF-weighted sum of its support pixels' brightness (``blur``, samples x support).
     support: _Pixels | None = None
     blur: sp.csr_matrix | None = None
-
-
-def _columns(problem: _MeshProblem, face, image_pos) -> np.ndarray:
-    """The Jacobian's nine columns of each pixel seeing ``face`` in image ``image_pos``."""
-    cell = problem.cell[face]
-    return np.column_stack([
-        problem.F[face], problem.o_a + cell, np.full(len(face), problem.o_k), problem.o_dk + cell,
-        np.full(len(face), problem.o_l), np.full(len(face), problem.o_l + 1), problem.o_g + image_pos,
-    ])
 
 
 def _blur_matrix(psf: np.ndarray, sample_pixel, support_pixel, shape) -> sp.csr_matrix:
@@ -236,7 +230,12 @@ def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intri
             support.append((face[seen], np.full(len(seen), position), -d[seen], position * height * width + seen))
     face, image_pos, view, value, pixel = (np.concatenate(p) for p in zip(*parts))
     sigma = np.sqrt(variance(value) / value**2 + settings.floor**2)
-    samples = _Samples(face, image_pos, view, np.log(value), sigma, _columns(problem, face, image_pos))
+    samples = _Samples(face, image_pos, view, np.log(value), sigma)
+    cell = problem.cell[face]
+    samples.columns = np.column_stack([
+        problem.F[face], problem.o_a + cell, np.full(len(face), problem.o_k), problem.o_dk + cell,
+        np.full(len(face), problem.o_l), np.full(len(face), problem.o_l + 1), problem.o_g + image_pos,
+    ])
     if psf is not None:
         s_face, s_image, s_view, s_pixel = (np.concatenate(p) for p in zip(*support))
         samples.support = _Pixels(s_face, s_image, s_view)
@@ -265,9 +264,9 @@ class _State:
         )
 
 
-def _shading(problem: _MeshProblem, state: _State, n, pixels: _Pixels, rotations):
+def _shading(problem: _MeshProblem, state: _State, n, pixels: _Pixels | _Samples, rotations):
     """The log brightness the state gives each of ``pixels`` (face normals ``n``), whether both its cosines are above
-    the clamp, and the parts its derivatives need."""
+    the clamp, and the parts the Jacobian needs."""
     light_body = np.einsum("nji,j->ni", rotations, state.light)[pixels.image]
     nf = n[pixels.face]
     cos_i = np.einsum("ij,ij->i", nf, light_body)
@@ -279,24 +278,6 @@ def _shading(problem: _MeshProblem, state: _State, n, pixels: _Pixels, rotations
     log_ie = np.log(cos_i) + np.log(cos_e)
     model = state.log_albedo[cell] + state.log_gains[pixels.image] + k * log_ie - np.log(cos_e)
     return model, ok, (nf, light_body, cos_i, cos_e, k, log_ie)
-
-
-def _model_rows(problem: _MeshProblem, state: _State, dn, pixels: _Pixels, parts, rotations, scale, columns) -> sp.csr_matrix:
-    """The derivatives of the pixels' log brightness (``_shading``) by the unknowns, each row times ``scale`` (CSR, 9 per row)."""
-    nf, light_body, cos_i, cos_e, k, log_ie = parts
-    g = (k / cos_i)[:, None] * light_body + ((k - 1) / cos_e)[:, None] * pixels.view
-    data = np.empty((len(scale), 9))
-    data[:, :3] = np.einsum("mj,mvj->mv", g, dn[pixels.face]) * scale[:, None]
-    data[:, 3] = scale
-    data[:, 4] = scale * log_ie
-    data[:, 5] = scale * log_ie
-    e1, e2 = _light_basis(state.light)
-    for j, e in enumerate((e1, e2)):
-        e_body = np.einsum("nji,j->ni", rotations, e)[pixels.image]
-        data[:, 6 + j] = scale * k * np.einsum("ij,ij->i", nf, e_body) / cos_i
-    data[:, 8] = scale
-    m = len(scale)
-    return sp.csr_matrix((data.ravel(), columns.ravel(), np.arange(0, 9 * m + 1, 9)), shape=(m, problem.n_par))
 
 
 def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotations, jacobian: bool):
@@ -326,7 +307,20 @@ def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotation
     Fv = problem.F
     tangent = lambda v: (v - np.einsum("ij,ij->i", v, n)[:, None] * n) / norm[:, None]  # noqa: E731
     dn = np.stack([tangent(np.cross(D[Fv[:, 0]], b - c)), tangent(np.cross(D[Fv[:, 1]], c - a)), tangent(np.cross(b - a, D[Fv[:, 2]]))], axis=1)  # (nf, 3, 3)
-    J = _model_rows(problem, state, dn, samples, parts, rotations, s, samples.columns)
+    nf, light_body, cos_i, cos_e, k, log_ie = parts
+    g = (k / cos_i)[:, None] * light_body + ((k - 1) / cos_e)[:, None] * samples.view
+    data = np.empty((len(r), 9))
+    data[:, :3] = np.einsum("mj,mvj->mv", g, dn[samples.face]) * s[:, None]
+    data[:, 3] = s
+    data[:, 4] = s * log_ie
+    data[:, 5] = s * log_ie
+    e1, e2 = _light_basis(state.light)
+    for j, e in enumerate((e1, e2)):
+        e_body = np.einsum("nji,j->ni", rotations, e)[samples.image]
+        data[:, 6 + j] = s * k * np.einsum("ij,ij->i", nf, e_body) / cos_i
+    data[:, 8] = s
+    m = len(r)
+    J = sp.csr_matrix((data.ravel(), samples.columns.ravel(), np.arange(0, 9 * m + 1, 9)), shape=(m, problem.n_par))
     return r * weight, prior_r, J
 
 
