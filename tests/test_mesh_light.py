@@ -4,7 +4,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, mesh_light_skipped
+from asteroid_photometry.core import files
+from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, mesh_light_of, mesh_light_skipped
 from asteroid_photometry.from_images import mesh_light
 from asteroid_photometry.from_images.refine import PureSampleCloud
 from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
@@ -110,6 +111,38 @@ def test_fit_recovers_the_light_of_a_rendered_sphere():
     assert error_deg < 0.5
     assert abs(fit.minnaert_k - 0.9) < 0.04
     assert fit.n_steps >= 4
+
+
+def test_fit_recovers_the_gains_of_a_rendered_sphere():
+    """Each image of the sphere off by a calibration gain (3 % scatter): the fit's gains follow them, in log, to well
+    under their scatter (the common factor trades with the albedo: compared after taking each side's mean off)."""
+    intrinsics = Intrinsics(128, 128, 240.0, 64.0, 64.0)
+    poses, centres = _ring(16, 5.0)
+    true_light = _light(15.0)
+    images = _render_sphere(poses, centres, intrinsics, true_light, 0.3, 0.9, noise=0.01, seed=4)
+    true_log_gains = 0.03 * np.random.default_rng(5).standard_normal(len(images))
+    images = [image * np.exp(g) for image, g in zip(images, true_log_gains)]
+    vertices, triangles, _ = _sphere(12)
+    fit = mesh_light.fit_mesh_light(
+        vertices, triangles, centres, poses, intrinsics, images, lambda value: (0.01 * value) ** 2, true_light, 0.9, 0.03,
+        mesh_light.MeshLightSettings(outer=2, inner=4),
+    )
+    np.testing.assert_array_equal(fit.image_indices, np.arange(len(images)))
+    error = (fit.log_gains - fit.log_gains.mean()) - (true_log_gains - true_log_gains.mean())
+    assert np.sqrt(np.mean(error**2)) < 0.2 * np.std(true_log_gains)
+
+
+def test_the_mesh_stages_gains_are_by_image_at_geometric_mean_one(tmp_path):
+    path = tmp_path / "mesh_light.npz"
+    log_gains = np.array([0.02, 0.05, -0.01])
+    files.savez(path, status=np.str_("ok"), applied=True, reason=np.str_(""), light_dir_cam=np.array([0.0, 0.0, -1.0]), log_gains=log_gains, image_indices=np.array([0, 2, 3]))
+    light, gains = mesh_light_of(path, 5)
+    np.testing.assert_array_equal(light, [0.0, 0.0, -1.0])
+    np.testing.assert_array_equal(gains[[1, 4]], 1.0)  # images the fit did not use
+    np.testing.assert_allclose(np.prod(gains[[0, 2, 3]]), 1.0)
+    np.testing.assert_allclose(gains[2] / gains[0], np.exp(0.03))
+    files.savez(path, status=np.str_("ok"), applied=False, reason=np.str_("noise-free"))
+    assert mesh_light_of(path, 5) is None
 
 
 def test_too_few_pixels_is_a_clear_error():

@@ -411,3 +411,25 @@ def test_the_facet_turn_column_reads_a_known_lean_in_the_azimuth_columns_sense()
     azimuth, elevation = metrics.light_error_components_deg(light_turned, light_true, body_to_camera @ BODY_SPIN_AXIS)
     assert azimuth == pytest.approx(0.8, abs=1e-6)
     assert elevation == pytest.approx(0.0, abs=1e-6)
+
+
+def test_over_gains_divides_each_sample_by_its_images_gain():
+    rng = np.random.default_rng(3)
+    n_obs, n_points = 12, 3
+    image_index = np.array([0, 1, 2, 3] * 3)
+    normals = rng.normal(size=(n_obs, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    obs = estimation.Observations(np.repeat(np.arange(n_points), 4), normals, normals, rng.uniform(0.1, 0.5, n_obs), n_points)
+    pure = refine.PureSampleCloud(
+        np.zeros((n_points, 3)), np.zeros((n_points, 3)), np.zeros((n_points, 3)), obs, image_index, np.zeros(n_points), np.zeros(n_points),
+        n_points, np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, -1.0]), 0.9,
+    )
+    gains = np.array([1.0, 1.02, 0.97, 1.01])
+    divided = pure.over_gains(gains)
+    np.testing.assert_allclose(divided.observations.brightness * gains[image_index], obs.brightness)
+    np.testing.assert_array_equal(divided.observations.point_index, obs.point_index)
+    np.testing.assert_array_equal(divided.image_gains, gains)
+    # Gains divided out before are kept: the record is their product.
+    again = divided.over_gains(np.array([0.99, 1.0, 1.0, 1.03]))
+    np.testing.assert_allclose(again.image_gains, gains * [0.99, 1.0, 1.0, 1.03])
+    np.testing.assert_allclose(again.observations.brightness * again.image_gains[image_index], obs.brightness)

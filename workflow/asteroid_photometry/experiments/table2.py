@@ -402,11 +402,19 @@ def mesh_light_stage(registration_npz, reconstruction_dir, mission_dir, refined_
     )
 
 
-def mesh_light_of(path) -> np.ndarray | None:
-    """The light :func:`mesh_light_stage` wrote to ``path`` where it is to be applied, else ``None``; raises its recorded failure."""
+def mesh_light_of(path, n_images: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The light and the per-image gains :func:`mesh_light_stage` wrote to ``path`` where they are to be applied, else
+    ``None``; raises its recorded failure. The gains, by image index (``n_images`` of them), are the mesh fit's on the
+    images over the refinement's gains, their geometric mean over the images the fit used put at one (the albedo keeps
+    the scale); an image the fit did not use gets one."""
     with np.load(path) as data:
         check_npz(data, path)
-        return np.asarray(data["light_dir_cam"], float) if bool(data["applied"]) else None
+        if not bool(data["applied"]):
+            return None
+        log_gains, indices = np.asarray(data["log_gains"], float), np.asarray(data["image_indices"], int)
+        gains = np.ones(n_images)
+        gains[indices] = np.exp(log_gains - log_gains.mean())
+        return np.asarray(data["light_dir_cam"], float), gains
 
 
 def _cloud_estimate(oriented, surface, recon, images, settings: dict):
@@ -703,11 +711,13 @@ def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapp
     that failed here or before gets, for every estimator, a file with its
     status; an estimator that fails gets its own, and the others still run.
     ``koizumi_lm``'s final fit holds the light of ``mesh_light_stage`` where
-    that stage applied one (``light_source`` "mesh"), else the refinement's.
+    that stage applied one (``light_source`` "mesh"), else the refinement's;
+    there every estimator's fits after refinement see the samples over that
+    stage's per-image gains (:func:`mesh_light_of`).
     """
     try:
         stage = read_cloud_stage(inputs, settings)
-        held = mesh_light_of(inputs.mesh_light_npz) if inputs.mesh_light_npz is not None else None
+        held = mesh_light_of(inputs.mesh_light_npz, len(stage.images)) if inputs.mesh_light_npz is not None else None
     except DataFailure as failure:
         reason = record("estimate_cloud", failure)
         for path in out_npz.values():
@@ -716,8 +726,11 @@ def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapp
     known_k = float(stage.pure.refined_minnaert_k)  # the workflow's own k for the body (refine_stage), for Iwano's baseline
     light_source = "refinement"
     if held is not None:
-        # The final fit holds the mesh fit's light (mesh_light_stage) instead of the refinement's.
-        stage = replace(stage, pure=replace(stage.pure, refined_light_dir_cam=held))
+        # The final fit holds the mesh fit's light (mesh_light_stage) instead of the refinement's, on the samples over
+        # the mesh fit's gains: fitted to every pixel, they take off the calibration error the refinement's left (all of
+        # it where the normals tilt freely and the refinement fits none; docs/table2.md, section 13).
+        light, gains = held
+        stage = replace(stage, pure=replace(stage.pure.over_gains(gains), refined_light_dir_cam=light))
         light_source = "mesh"
     final_obs = final_observations(stage, settings)
     for method, path in out_npz.items():

@@ -334,6 +334,14 @@ class PureSampleCloud:
     image_gains: np.ndarray | None = None  # per image, the calibration gains the light step divided out (anchored_light); None: none
     normals_tilt_freely: bool = False  # the normals were fitted about both axes (no spin axis: views or light out of the ring's plane)
 
+    def over_gains(self, gains) -> "PureSampleCloud":
+        """The same cloud with each sample's brightness divided by its image's gain (``gains``: per image index), the
+        gains kept in ``image_gains`` (times any divided out before)."""
+        gains = np.asarray(gains, float)
+        obs = self.observations
+        divided = Observations(obs.point_index, obs.normal_cam, obs.view_cam, obs.brightness / gains[self.image_index], obs.n_points)
+        return replace(self, observations=divided, image_gains=gains if self.image_gains is None else self.image_gains * gains)
+
     def save(self, path) -> None:
         """One .npz with the arrays."""
         obs = self.observations
