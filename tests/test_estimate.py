@@ -430,9 +430,36 @@ def test_where_the_normals_tilted_freely_the_final_fit_keeps_the_well_lit_points
 
     settings = {"min_observations_per_point": 4}
     about_axis = SimpleNamespace(observations=obs, refined_light_dir_cam=light, normals_tilt_freely=False)
+    lit_only = table2.lit_samples(obs, light, table2.FINAL_MIN_COS_INCIDENCE, 4)
     lit = table2.final_observations(SimpleNamespace(pure=about_axis), settings)
-    assert lit.n_obs == table2.lit_samples(obs, light, table2.FINAL_MIN_COS_INCIDENCE, 4).n_obs
+    expected = table2.seen_within_emission(lit_only, table2.FINAL_MIN_COS_EMISSION, 4)
+    np.testing.assert_array_equal(lit.brightness, expected.brightness)
     free = table2.final_observations(SimpleNamespace(pure=SimpleNamespace(**{**vars(about_axis), "normals_tilt_freely": True})), settings)
-    expected = table2.well_lit_points(lit, light, table2.FREE_TILT_MIN_MEAN_COS_INCIDENCE)
+    expected = table2.seen_within_emission(table2.well_lit_points(lit_only, light, table2.FREE_TILT_MIN_MEAN_COS_INCIDENCE), table2.FINAL_MIN_COS_EMISSION, 4)
     np.testing.assert_array_equal(free.brightness, expected.brightness)
     assert 0 < free.n_obs < lit.n_obs
+
+
+def test_the_final_fit_leaves_out_the_samples_seen_near_the_limb():
+    """table2.seen_within_emission drops the rows beyond the emission cut and the points left with too few rows;
+    final_observations applies it with FINAL_MIN_COS_EMISSION, so no row it returns is seen more obliquely."""
+    from types import SimpleNamespace
+
+    from asteroid_photometry.estimation import synthetic_observations
+    from asteroid_photometry.experiments import table2
+    from synthetic_helpers import light_at
+
+    light = light_at(20.0)
+    obs = synthetic_observations(60, 8, light, 0.5, 0.8, np.random.default_rng(6))
+    cut = table2.FINAL_MIN_COS_EMISSION
+    assert np.any(obs.cos_emission < cut)
+    squarely = obs.cos_emission >= cut
+    per_point = np.bincount(obs.point_index[squarely], minlength=obs.n_points)
+    expected_rows = squarely & (per_point[obs.point_index] >= 6)
+    assert np.any(squarely & ~expected_rows)  # some point loses the rows it kept as well
+    kept = table2.seen_within_emission(obs, cut, 6)
+    np.testing.assert_array_equal(kept.brightness, obs.brightness[expected_rows])
+    assert kept.n_points == obs.n_points
+
+    final = table2.final_observations(SimpleNamespace(pure=SimpleNamespace(observations=obs, refined_light_dir_cam=light, normals_tilt_freely=False)), {"min_observations_per_point": 4})
+    assert final.n_obs > 0 and final.cos_emission.min() >= cut

@@ -44,6 +44,7 @@ from asteroid_photometry.from_images import cloud as cloud_lib, mesh_light, reco
 from asteroid_photometry.from_images.purity import PurityTest
 from asteroid_photometry.world.cameras import Intrinsics
 from asteroid_photometry.world.images import mission_navigation, read_mission, read_mission_file
+from asteroid_photometry.world import observe
 from asteroid_photometry.world.noise import sensor_from_config
 from asteroid_photometry.world.shape import load_shape_npz, ROTATION_PERIOD_H
 
@@ -602,10 +603,30 @@ FINAL_MIN_COS_INCIDENCE = 0.1
 def lit_samples(observations: estimation.Observations, light_dir_cam, min_cos_incidence: float, min_observations: int) -> estimation.Observations:
     """The rows of ``observations`` that ``light_dir_cam`` lights at a cosine of at least ``min_cos_incidence``, of the
     points left with at least ``min_observations`` of them (the others lose all their rows); the points' numbering is kept."""
-    keep = observations.cos_incidence(light_dir_cam) >= min_cos_incidence
-    counts = np.bincount(observations.point_index[keep], minlength=observations.n_points)
-    keep &= counts[observations.point_index] >= min_observations
-    return observations.rows(keep)
+    return rows_of_points_kept_enough(observations, observations.cos_incidence(light_dir_cam) >= min_cos_incidence, min_observations)
+
+
+def rows_of_points_kept_enough(observations: estimation.Observations, keep: np.ndarray, min_observations: int) -> estimation.Observations:
+    """The rows ``keep`` marks, of the points it keeps at least ``min_observations`` times (the others lose all their
+    rows); the points' numbering is kept."""
+    return observations.rows(observe.enough_observations(observations.point_index, keep, observations.n_points, min_observations))
+
+
+#: The final per-point fit leaves out the samples seen beyond 70 degrees of emission (cosine below this). The refinement
+#: keeps samples down to its own ``min_cos_emission`` (0.2) to place and tilt the points, but near the limb a normal's
+#: error of a degree or two moves the emission cosine by a large fraction and a pixel's footprint spans metres of
+#: relief and the point spread function's tail: those samples pulled the per-point k low (about -0.01 under `amica`)
+#: and the albedo high. Chosen on tuning sets only, none of the paper's: config/tuning_mid.yaml's 16 `amica` rows (mean
+#: |k| 0.0073 -> 0.0048, every row nearer), config/tuning.yaml's 12 `amica` k-1.15 rows (0.0111 -> 0.0091) and
+#: config/conditions_geometry.yaml's `oblique` rows (0.0070 -> 0.0042), `ideal` unchanged; 60, 65 and 75 degrees were
+#: worse on the tuning grid (docs/table2.md, section 14).
+FINAL_MIN_COS_EMISSION = 0.34
+
+
+def seen_within_emission(observations: estimation.Observations, min_cos_emission: float, min_observations: int) -> estimation.Observations:
+    """The rows of ``observations`` seen at an emission cosine of at least ``min_cos_emission``, of the points left with
+    at least ``min_observations`` of them; the points' numbering is kept."""
+    return rows_of_points_kept_enough(observations, observations.cos_emission >= min_cos_emission, min_observations)
 
 
 #: Where the refinement's normals tilted freely (``PureSampleCloud.normals_tilt_freely``: the `oblique` condition), the
@@ -629,12 +650,13 @@ def well_lit_points(observations: estimation.Observations, light_dir_cam, min_me
 
 def final_observations(stage: CloudStage, settings: dict) -> estimation.Observations:
     """The refined cloud's pure samples that the final fit under the refinement's light uses (:data:`FINAL_MIN_COS_INCIDENCE`;
-    where its normals tilted freely, :data:`FREE_TILT_MIN_MEAN_COS_INCIDENCE` too)."""
+    where its normals tilted freely, :data:`FREE_TILT_MIN_MEAN_COS_INCIDENCE` too; then :data:`FINAL_MIN_COS_EMISSION`)."""
     pure = stage.pure
-    lit = lit_samples(pure.observations, pure.refined_light_dir_cam, FINAL_MIN_COS_INCIDENCE, settings["min_observations_per_point"])
+    min_observations = settings["min_observations_per_point"]
+    lit = lit_samples(pure.observations, pure.refined_light_dir_cam, FINAL_MIN_COS_INCIDENCE, min_observations)
     if pure.normals_tilt_freely:
         lit = well_lit_points(lit, pure.refined_light_dir_cam, FREE_TILT_MIN_MEAN_COS_INCIDENCE)
-    return lit
+    return seen_within_emission(lit, FINAL_MIN_COS_EMISSION, min_observations)
 
 
 def estimate_after_refinement(stage: CloudStage, method: str, known_k: float, final_obs: estimation.Observations) -> tuple[estimation.FitResult, estimation.FitResult, float]:
