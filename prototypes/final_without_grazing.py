@@ -1,8 +1,10 @@
 """Prototype, not part of the workflow: Table 2's final fit with the samples seen beyond an emission angle left out.
 
-For each row of a finished run, the paper's per-point albedo and k are fitted as rule ``estimate_cloud`` does at
-3b2f797 (the mesh fit's light held and its gains divided out where it applied, else the refinement's light), once
-per emission cosine cut (0: none, the workflow's own), each point left with at least the config's
+For each row of a finished run, the paper's per-point albedo and k are fitted as rule ``estimate_cloud`` does (the
+mesh fit's light held and its gains divided out where it applied, else the refinement's light), once per emission
+cosine cut on top of ``table2.final_observations``' own (which since d2a85a4 leaves out the samples below
+``FINAL_MIN_COS_EMISSION``, 0.34: a cut below that changes nothing; the cut was chosen with this script at
+3b2f797, when it had none, docs/table2.md, section 14), each point left with at least the config's
 ``min_observations_per_point`` samples; scored against the truth at the refined points as rule ``score_cloud``
 does (the truth read only to score: never use this inside the workflow). docs/table2.md, section 13.
 
