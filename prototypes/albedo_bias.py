@@ -12,7 +12,6 @@ section 14.
     python prototypes/albedo_bias.py . config/config.yaml amica 2 light0_albedo0.7_k1:on
 """
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -50,10 +49,8 @@ def main() -> None:
         )
         stage = table2.read_cloud_stage(inputs, settings, observations=False)
         held = table2.mesh_light_of(res / f"mesh_light/{row}.npz", len(stage.images))
+        stage = table2.under_mesh_light(stage, held)
         light = stage.pure.refined_light_dir_cam
-        if held is not None:
-            light, gains = held
-            stage = replace(stage, pure=replace(stage.pure.over_gains(gains), refined_light_dir_cam=light))
         obs = table2.final_observations(stage, settings)
         fit = final_fit(obs, light)
         scoring = read_scoring_truth(res / "shape/model.npz", res / f"truth/mission/{imaging}/{set_id}.json", res / f"truth/render/{condition_rendered_set(set_id, condition)}")

@@ -12,10 +12,8 @@ does (the truth read only to score: never use this inside the workflow). docs/ta
     python prototypes/final_without_grazing.py runs/tuning_mid config/tuning_mid.yaml amica 0,0.26,0.34 light0_albedo0.3_k0.75:on
 """
 import sys
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
@@ -39,18 +37,13 @@ for spec in rows:
     stage = table2.read_cloud_stage(inputs, settings, observations=False)
     scoring = read_scoring_truth(res / "shape/model.npz", res / f"truth/mission/{imaging}/{set_id}.json", res / f"truth/render/{condition_rendered_set(set_id, condition)}")
     held = table2.mesh_light_of(res / f"mesh_light/{row}.npz", len(stage.images))
-    if held is None:
-        light = stage.pure.refined_light_dir_cam
-    else:
-        light, gains = held
-        stage = replace(stage, pure=replace(stage.pure.over_gains(gains), refined_light_dir_cam=light))
+    stage = table2.under_mesh_light(stage, held)
+    light = stage.pure.refined_light_dir_cam
     final = table2.final_observations(stage, settings)
     truth = truth_at_points(scoring, stage.transform, stage.pure.points)
     out = [spec]
     for c in cuts:
-        obs = final.rows(final.cos_emission >= c)
-        counts = np.bincount(obs.point_index, minlength=obs.n_points)
-        obs = obs.rows(counts[obs.point_index] >= settings["min_observations_per_point"])
+        obs = table2.seen_within_emission(final, c, settings["min_observations_per_point"])
         after = table2.plausible_points(table2.run_estimator(obs, "koizumi_lm", light_init=light, hold_light=True))
         s = metrics.summary_row(set_id, after, truth.scoring(truth.light_dir_cam))
         ok = abs(s['albedo_err']) <= 0.01 and abs(s['k_err']) <= 0.02

@@ -418,6 +418,17 @@ def mesh_light_of(path, n_images: int) -> tuple[np.ndarray, np.ndarray] | None:
         return np.asarray(data["light_dir_cam"], float), gains
 
 
+def under_mesh_light(stage: CloudStage, held: tuple[np.ndarray, np.ndarray] | None) -> CloudStage:
+    """``stage`` with the mesh fit's light and gains (:func:`mesh_light_of`; ``None``: unchanged) in place of the
+    refinement's: the final fit holds that light, on the samples over the mesh fit's gains. Fitted to every pixel,
+    they take off the calibration error the refinement's left (all of it where the normals tilt freely and the
+    refinement fits none; docs/table2.md, section 13)."""
+    if held is None:
+        return stage
+    light, gains = held
+    return replace(stage, pure=replace(stage.pure.over_gains(gains), refined_light_dir_cam=light))
+
+
 def _cloud_estimate(oriented, surface, recon, images, settings: dict):
     """The paper's estimate on the cloud's samples of ``images``: (light, median albedo, median k)."""
     obs, _ = cloud_observations_of(oriented, recon, images, settings, surface)
@@ -746,14 +757,8 @@ def estimate_cloud_stage(inputs: CloudStageInputs, settings: dict, out_npz: Mapp
             write_failed_npz(path, reason)
         return
     known_k = float(stage.pure.refined_minnaert_k)  # the workflow's own k for the body (refine_stage), for Iwano's baseline
-    light_source = "refinement"
-    if held is not None:
-        # The final fit holds the mesh fit's light (mesh_light_stage) instead of the refinement's, on the samples over
-        # the mesh fit's gains: fitted to every pixel, they take off the calibration error the refinement's left (all of
-        # it where the normals tilt freely and the refinement fits none; docs/table2.md, section 13).
-        light, gains = held
-        stage = replace(stage, pure=replace(stage.pure.over_gains(gains), refined_light_dir_cam=light))
-        light_source = "mesh"
+    light_source = "refinement" if held is None else "mesh"
+    stage = under_mesh_light(stage, held)
     final_obs = final_observations(stage, settings)
     for method, path in out_npz.items():
         try:
