@@ -1,4 +1,4 @@
-"""Helpers shared by the tests: light directions and per-point truths of synthetic sets, a sphere's exact image."""
+"""Helpers shared by the tests: light directions and per-point truths of synthetic sets, a sphere's exact image, a box."""
 
 import numpy as np
 
@@ -58,3 +58,18 @@ def equatorial_poses(n_images: int, distance: float) -> dict:
         pose[:3, :3], pose[:3, 3] = rotation, -rotation @ centre
         poses[index] = pose
     return poses
+
+
+#: The corners of a box centred on the origin (times its half extents) and its 12 facets, counter-clockwise seen from outside.
+BOX_CORNERS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=np.float64)
+BOX_FACES = np.array(
+    [
+        [0, 2, 1], [0, 3, 2],  # -z
+        [4, 5, 6], [4, 6, 7],  # +z
+        [0, 1, 5], [0, 5, 4],  # -y
+        [3, 7, 6], [3, 6, 2],  # +y
+        [0, 4, 7], [0, 7, 3],  # -x
+        [1, 2, 6], [1, 6, 5],  # +x
+    ],
+    dtype=np.int64,
+)

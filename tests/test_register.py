@@ -26,24 +26,11 @@ from asteroid_photometry.world.mesh import (
     transform_points,
 )
 from asteroid_photometry.world.shape import facet_geometry, load_shape_model
+from synthetic_helpers import BOX_CORNERS, BOX_FACES
 
 # A box 200 x 100 x 50 m centred on the origin, facets counter-clockwise seen from outside.
 BOX_HALF_M = np.array([100.0, 50.0, 25.0])
-BOX_VERTICES_M = BOX_HALF_M * np.array(
-    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]],
-    dtype=np.float64,
-)
-BOX_FACES = np.array(
-    [
-        [0, 2, 1], [0, 3, 2],  # -z
-        [4, 5, 6], [4, 6, 7],  # +z
-        [0, 1, 5], [0, 5, 4],  # -y
-        [3, 7, 6], [3, 6, 2],  # +y
-        [0, 4, 7], [0, 7, 3],  # -x
-        [1, 2, 6], [1, 6, 5],  # +x
-    ],
-    dtype=np.int64,
-)
+BOX_VERTICES_M = BOX_HALF_M * BOX_CORNERS
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ import pytest
 
 from asteroid_photometry.world import shape
 from asteroid_photometry.world.shape import ShapeModelError
+from synthetic_helpers import BOX_CORNERS, BOX_FACES
 
 SCRIPTS_DIR = Path(__file__).parents[1] / "workflow" / "scripts"
 
@@ -39,21 +40,8 @@ SHARED_MODELS = {
 }
 
 # A cube of side 100 m centred on the origin, facets counter-clockwise seen from outside.
-CUBE_VERTICES_KM = 0.05 * np.array(
-    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]],
-    dtype=np.float64,
-)
-CUBE_FACES = np.array(
-    [
-        [0, 2, 1], [0, 3, 2],  # -z
-        [4, 5, 6], [4, 6, 7],  # +z
-        [0, 1, 5], [0, 5, 4],  # -y
-        [3, 7, 6], [3, 6, 2],  # +y
-        [0, 4, 7], [0, 7, 3],  # -x
-        [1, 2, 6], [1, 6, 5],  # +x
-    ],
-    dtype=np.int64,
-)
+CUBE_VERTICES_KM = 0.05 * BOX_CORNERS
+CUBE_FACES = BOX_FACES
 
 
 def write_obj(path, vertices_km, faces, line_end="\n"):
