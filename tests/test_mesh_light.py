@@ -1,11 +1,13 @@
-"""The mesh fit's light (from_images.mesh_light): its Jacobian, its convergence on rendered images of a sphere, the stage's gate."""
+"""The mesh fit's light (from_images.mesh_light): its Jacobian, its convergence on rendered images of a sphere, the stage's gate,
+the final cloud's choice."""
 
 import numpy as np
 import open3d as o3d
 import pytest
 
 from asteroid_photometry.core import files
-from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, mesh_light_of, mesh_light_skipped
+from asteroid_photometry.core.failures import DataFailure
+from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, final_cloud_path, mesh_light_of, mesh_light_skipped
 from asteroid_photometry.from_images import mesh_light
 from asteroid_photometry.from_images.refine import PureSampleCloud
 from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
@@ -145,6 +147,18 @@ def test_the_mesh_stages_gains_are_by_image_at_geometric_mean_one(tmp_path):
     assert mesh_light_of(path, 5) is None
 
 
+def test_the_final_fit_reads_the_refitted_cloud_only_where_there_is_one(tmp_path):
+    refined, final = tmp_path / "refined.npz", tmp_path / "final.npz"
+    files.savez(final, status=np.str_("ok"), refitted=False, reason=np.str_("images with a sensor model"))
+    assert final_cloud_path(refined, final) == refined
+    files.savez(final, points=np.zeros((3, 3)), normals=np.zeros((3, 3)))
+    assert final_cloud_path(refined, final) == final
+    assert final_cloud_path(refined, None) == refined
+    files.savez(final, status=np.str_("failed"), reason=np.str_("the refit kept 2 points"))
+    with pytest.raises(DataFailure, match="kept 2 points"):
+        final_cloud_path(refined, final)
+
+
 def test_too_few_pixels_is_a_clear_error():
     intrinsics = Intrinsics(16, 16, 10.0, 8.0, 8.0)
     poses, centres = _ring(2, 50.0)
@@ -160,12 +174,10 @@ def _pure(k: float) -> PureSampleCloud:
     return cloud
 
 
-def test_gate_skips_noise_free_images_and_a_k_near_one_half():
-    sensor = {"sensor": {"level": "amica12"}}
-    assert "noise-free" in mesh_light_skipped({}, _pure(0.9))
-    assert "below" in mesh_light_skipped(sensor, _pure(MESH_LIGHT_MIN_K - 0.01))
-    assert mesh_light_skipped(sensor, _pure(MESH_LIGHT_MIN_K + 0.01)) is None
-    assert "below" in mesh_light_skipped(sensor, _pure(float("nan")))
+def test_gate_skips_a_k_near_one_half():
+    assert "below" in mesh_light_skipped(_pure(MESH_LIGHT_MIN_K - 0.01))
+    assert mesh_light_skipped(_pure(MESH_LIGHT_MIN_K + 0.01)) is None
+    assert "below" in mesh_light_skipped(_pure(float("nan")))
 
 
 def test_scaled_normal_is_the_damped_system_of_the_scaled_jacobian():

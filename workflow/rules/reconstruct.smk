@@ -86,7 +86,7 @@ rule refine_cloud:
 
 
 # The light of a shape from shading on the cloud's whole surface, every pixel of every image (a stage of its own: a
-# minute or two a set); where it applies (images with a sensor model, the refinement's k not near 0.5) the paper's
+# minute or two a set); where it applies (the refinement's k not near 0.5) the paper's
 # estimator's final fit holds it instead of the refinement's (docs/table2.md, section 13).
 rule mesh_light:
     input:
@@ -107,6 +107,29 @@ rule mesh_light:
         "../scripts/mesh_light.py"
 
 
+# The refined cloud the final fit and its scoring read: the refinement's, or on noise-free images under the mesh fit's
+# light, its points' normals fitted again under that light (docs/table2.md, section 15).
+rule final_cloud:
+    input:
+        registration=rules.register_cloud.output.npz,
+        model=rules.reconstruct.output.model,
+        mission=rules.mission.output.mission,
+        refined=rules.refine_cloud.output.npz,
+        mesh_light=rules.mesh_light.output.npz,
+    output:
+        npz="results/final_cloud/{imaging}/{set_id}/priors-{priors}.npz",
+    params:
+        settings=reconstruction_settings("refine"),
+    log:
+        "logs/final_cloud/{imaging}/{set_id}/priors-{priors}.log",
+    benchmark:
+        "benchmarks/final_cloud/{imaging}/{set_id}/priors-{priors}.tsv"
+    conda:
+        "../../envs/photometry.yaml"
+    script:
+        "../scripts/final_cloud.py"
+
+
 # One job per cloud runs every estimator (config estimators, in order) and scores them: the cloud's inputs, its
 # samples of the images and the truth are read once, not once per estimator. Each estimator keeps its own files.
 CLOUD_ESTIMATES = "results/estimates_cloud/{imaging}/{set_id}/priors-{priors}/{method}.npz"
@@ -121,6 +144,7 @@ rule estimate_cloud:
         model=rules.reconstruct.output.model,
         mission=rules.mission.output.mission,
         refined=rules.refine_cloud.output.npz,
+        final_cloud=rules.final_cloud.output.npz,
         mesh_light=rules.mesh_light.output.npz,
     output:
         estimates=expand(CLOUD_ESTIMATES, method=ESTIMATORS, allow_missing=True),
@@ -146,6 +170,7 @@ rule score_cloud:
         model=rules.reconstruct.output.model,
         mission=rules.mission.output.mission,
         refined=rules.refine_cloud.output.npz,
+        final_cloud=rules.final_cloud.output.npz,
         shape=rules.prepare_shape.output.npz,
         truth=rules.mission.output.truth,
         render_truth=condition_render_dir,

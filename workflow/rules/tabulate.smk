@@ -50,6 +50,7 @@ rule tabulate_runtime:
             *per_condition(rules.register_cloud.benchmark, priors=PRIOR_SETTINGS),
             *per_condition(rules.refine_cloud.benchmark, priors=PRIOR_SETTINGS),
             *per_condition(rules.mesh_light.benchmark, priors=PRIOR_SETTINGS),
+            *per_condition(rules.final_cloud.benchmark, priors=PRIOR_SETTINGS),
             *per_condition(rules.estimate_cloud.benchmark, priors=PRIOR_SETTINGS),
             *per_condition(rules.score_cloud.benchmark, priors=PRIOR_SETTINGS),
             *expand(rules.render_model_set.benchmark, model_set=MODEL_SETS),

@@ -347,10 +347,8 @@ MESH_LIGHT_MIN_K = 0.65
 MESH_LIGHT_POISSON_DEPTH = 8
 
 
-def mesh_light_skipped(mission: dict, pure: refine.PureSampleCloud) -> str | None:
-    """Why the mesh fit is not run on a refined cloud (``None``: it is): noise-free images, or a k below :data:`MESH_LIGHT_MIN_K`."""
-    if not mission.get("sensor"):
-        return "noise-free images (no sensor model): the refinement's pure samples are exact, its light is kept"
+def mesh_light_skipped(pure: refine.PureSampleCloud) -> str | None:
+    """Why the mesh fit is not run on a refined cloud (``None``: it is): a k below :data:`MESH_LIGHT_MIN_K`."""
     if not pure.refined_minnaert_k >= MESH_LIGHT_MIN_K:
         return f"the refinement's k for the body ({pure.refined_minnaert_k:.3f}) is below {MESH_LIGHT_MIN_K}: the shading says too little about the slopes"
     return None
@@ -371,7 +369,7 @@ def mesh_light_stage(registration_npz, reconstruction_dir, mission_dir, refined_
             check_npz(data, refined_npz)
         pure = refine.PureSampleCloud.load(refined_npz)
         mission, images = read_mission(mission_dir)
-        reason = mesh_light_skipped(mission, pure)
+        reason = mesh_light_skipped(pure)
         if reason is None:
             with np.load(registration_npz) as data:
                 check_npz(data, registration_npz)
@@ -382,7 +380,9 @@ def mesh_light_stage(registration_npz, reconstruction_dir, mission_dir, refined_
             try:
                 fit = mesh_light.fit_mesh_light(
                     vertices, triangles, recon.camera_centres(), recon.body_to_camera(), recon.intrinsics(), [image / gain for image, gain in zip(images, gains)],
-                    PurityTest(sensor_from_config(mission["sensor"])).sample_variance, pure.refined_light_dir_cam, pure.refined_minnaert_k,
+                    # Noise-free images: no sensor variance, the residuals over the fit's relative floor alone.
+                    PurityTest(sensor_from_config(mission["sensor"])).sample_variance if mission.get("sensor") else None,
+                    pure.refined_light_dir_cam, pure.refined_minnaert_k,
                     float(mission.get("gain_sigma") or 0.0),
                 )
             except ValueError as error:
@@ -427,6 +427,81 @@ def under_mesh_light(stage: CloudStage, held: tuple[np.ndarray, np.ndarray] | No
         return stage
     light, gains = held
     return replace(stage, pure=replace(stage.pure.over_gains(gains), refined_light_dir_cam=light))
+
+
+# ---------------------------------------------------------------- final_cloud: the refined cloud the final fit reads
+
+
+def final_cloud_stage(registration_npz, reconstruction_dir, mission_dir, refined_npz, mesh_light_npz, settings: dict, out_npz) -> None:
+    """The refined cloud the final per-point fit and its scoring read (rule ``final_cloud``).
+
+    On noise-free images where the mesh fit's light is held, the refined
+    points' normals fitted again under that light (:func:`refit_under_light`):
+    fitted under the refinement's light and held under another, they leave k
+    to take up the difference (light 35 on the tuning grid: k 0.03 low;
+    docs/table2.md, section 15). Elsewhere the refinement's cloud unchanged:
+    under a sensor the same refit raised the albedo on the tuning sets. No
+    truth is read. Where the refinement's cloud stands, the file says so
+    (``refitted`` false, ``reason``) rather than copying it
+    (:func:`final_cloud_path`).
+    """
+    try:
+        with np.load(refined_npz) as data:
+            check_npz(data, refined_npz)
+        pure = refine.PureSampleCloud.load(refined_npz)
+        mission, images = read_mission(mission_dir)
+        held = mesh_light_of(mesh_light_npz, len(images))
+        if held is None or mission.get("sensor"):
+            reason = "the mesh fit's light is not held" if held is None else "images with a sensor model: the refit raised the albedo on the tuning sets"
+            log.info("the refinement's cloud is the final one: %s", reason)
+            files.savez(out_npz, status=np.str_(OK), refitted=False, reason=np.str_(reason))
+            return
+        with np.load(registration_npz) as data:
+            check_npz(data, registration_npz)
+            oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+        refitted = refit_under_light(pure, oriented, read_reconstruction(reconstruction_dir), images, held, settings)
+    except DataFailure as failure:
+        write_failed_npz(out_npz, record("final_cloud", failure))
+        return
+    refitted.save(out_npz)
+    log.info("normals refitted under the mesh fit's light: %d points, %d pure samples (the refinement's: %d, %d)", len(refitted.points), refitted.observations.n_obs, len(pure.points), pure.observations.n_obs)
+
+
+def final_cloud_path(refined_npz, final_cloud_npz):
+    """The refined cloud the final fit reads: ``final_cloud_npz`` (:func:`final_cloud_stage`) where it holds a refitted
+    cloud, else ``refined_npz``; ``final_cloud_npz`` None: ``refined_npz``. Raises its recorded failure."""
+    if final_cloud_npz is None:
+        return refined_npz
+    with np.load(final_cloud_npz) as data:
+        check_npz(data, final_cloud_npz)
+        return final_cloud_npz if "points" in data.files else refined_npz
+
+
+def refit_under_light(pure: refine.PureSampleCloud, oriented, recon, images, held: tuple[np.ndarray, np.ndarray], settings: dict) -> refine.PureSampleCloud:
+    """One pass of the pure-sample refinement (noise-free images: the relative purity tolerance) with the light held at
+    ``held``'s (:func:`mesh_light_of`), on the images over both gains. The cloud keeps the refinement's light, k and
+    gains as its own, its samples over the refinement's gains only (the final fit divides the mesh fit's out again)."""
+    light, mesh_gains = held
+    gains = (pure.image_gains if pure.image_gains is not None else np.ones(len(images))) * mesh_gains
+    poses = recon.body_to_camera()
+    axis = None if pure.normals_tilt_freely else refine.turn_axis(poses, oriented.points.mean(axis=0), light)[0]
+    # Each point's one-facet fit starts from the body's typical albedo under that light (the final fit's median).
+    over = pure.over_gains(mesh_gains)
+    lit = lit_samples(over.observations, light, FINAL_MIN_COS_INCIDENCE, settings["min_observations_per_point"])
+    start_albedo = float(np.nanmedian(run_estimator(lit, "koizumi_lm", light_init=light, hold_light=True).albedo))
+    refitted = refine.refine_by_pure_samples(
+        cloud_lib.poisson_surface(oriented), poses, recon.intrinsics(), [image / gain for image, gain in zip(images, gains)], light, start_albedo,
+        float(pure.refined_minnaert_k), n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"],
+        offset_steps=settings["refine_offset_steps"], purity_tolerance=settings["refine_purity_tolerance"], max_residual=settings["refine_max_residual"],
+        min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"], axis=axis,
+    )
+    if refitted.observations.n_obs < 10 * settings["min_observations_per_point"]:
+        raise DataFailure(f"the refit under the mesh fit's light kept {len(refitted.points)} of {refitted.n_candidates} candidate points ({refitted.observations.n_obs} pure samples); too few to fit")
+    # Its samples back over the refinement's gains alone: the final fit divides the mesh fit's out (under_mesh_light).
+    return replace(
+        refitted.over_gains(1.0 / mesh_gains), light_dir_cam=light, refined_light_dir_cam=pure.refined_light_dir_cam,
+        refined_minnaert_k=pure.refined_minnaert_k, image_gains=pure.image_gains, normals_tilt_freely=pure.normals_tilt_freely,
+    )
 
 
 def _cloud_estimate(oriented, surface, recon, images, settings: dict):
@@ -524,7 +599,8 @@ def plausible_points(result: estimation.FitResult) -> estimation.FitResult:
 class CloudStageInputs:
     """The files the estimates on a cloud come from, none of them truth: the outputs of ``register_stage``
     (``registration_npz``, ``registration_json``), ``reconstruct_stage`` (``reconstruction_dir``) and
-    ``refine_stage`` (``refined_npz``), ``mesh_light_stage`` (``mesh_light_npz``, optional), and the mission set (``mission_dir``)."""
+    ``refine_stage`` (``refined_npz``), ``mesh_light_stage`` (``mesh_light_npz``, optional), ``final_cloud_stage``
+    (``final_cloud_npz``, optional: where it refitted the cloud, the cloud read instead of ``refined_npz``), and the mission set (``mission_dir``)."""
 
     registration_npz: str | Path
     registration_json: str | Path
@@ -532,11 +608,15 @@ class CloudStageInputs:
     mission_dir: str | Path
     refined_npz: str | Path
     mesh_light_npz: str | Path | None = None
+    final_cloud_npz: str | Path | None = None
 
     @classmethod
     def from_rule_input(cls, rule_input) -> CloudStageInputs:
         """The files named as rules ``estimate_cloud`` and ``score_cloud`` name their inputs (``snakemake.input``)."""
-        return cls(rule_input.registration, rule_input.registration_summary, rule_input.model, rule_input.mission, rule_input.refined, getattr(rule_input, "mesh_light", None))
+        return cls(
+            rule_input.registration, rule_input.registration_summary, rule_input.model, rule_input.mission, rule_input.refined,
+            getattr(rule_input, "mesh_light", None), getattr(rule_input, "final_cloud", None),
+        )
 
 
 @dataclass(frozen=True)
@@ -569,8 +649,9 @@ def read_cloud_stage(inputs: CloudStageInputs, settings: dict, observations: boo
     """
     registration = json.loads(Path(inputs.registration_json).read_text())
     check_status(registration, inputs.registration_json)  # a failed registration's transform is wrong: nothing is scored through it
-    with np.load(inputs.refined_npz) as data:
-        check_npz(data, inputs.refined_npz)
+    refined_npz = final_cloud_path(inputs.refined_npz, inputs.final_cloud_npz)
+    with np.load(refined_npz) as data:
+        check_npz(data, refined_npz)
     recon = read_reconstruction(inputs.reconstruction_dir)
     with np.load(inputs.registration_npz) as data:
         check_npz(data, inputs.registration_npz)
@@ -583,7 +664,7 @@ def read_cloud_stage(inputs: CloudStageInputs, settings: dict, observations: boo
         require_cloud_observations(obs, settings, f"the reconstruction ({recon.report.n_images_registered} images, {len(oriented.points)} cloud points)")
     report = json.loads((Path(inputs.reconstruction_dir) / "report.json").read_text())
     # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
-    pure = refine.PureSampleCloud.load(inputs.refined_npz)
+    pure = refine.PureSampleCloud.load(refined_npz)
     return CloudStage(registration, report, recon, oriented, transform, mission, images, obs, pure)
 
 
