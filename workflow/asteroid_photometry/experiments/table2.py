@@ -489,11 +489,9 @@ def refit_under_light(pure: refine.PureSampleCloud, oriented, recon, images, hel
     over = pure.over_gains(mesh_gains)
     lit = lit_samples(over.observations, light, FINAL_MIN_COS_INCIDENCE, settings["min_observations_per_point"])
     start_albedo = float(np.nanmedian(run_estimator(lit, "koizumi_lm", light_init=light, hold_light=True).albedo))
-    refitted = refine.refine_by_pure_samples(
-        cloud_lib.poisson_surface(oriented), poses, recon.intrinsics(), [image / gain for image, gain in zip(images, gains)], light, start_albedo,
-        float(pure.refined_minnaert_k), n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"],
-        offset_steps=settings["refine_offset_steps"], purity_tolerance=settings["refine_purity_tolerance"], max_residual=settings["refine_max_residual"],
-        min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"], axis=axis,
+    refitted = _pure_samples(
+        cloud_lib.poisson_surface(oriented), recon, [image / gain for image, gain in zip(images, gains)],
+        (light, start_albedo, float(pure.refined_minnaert_k), axis), settings["refine_purity_tolerance"], settings,
     )
     if refitted.observations.n_obs < 10 * settings["min_observations_per_point"]:
         raise DataFailure(f"the refit under the mesh fit's light kept {len(refitted.points)} of {refitted.n_candidates} candidate points ({refitted.observations.n_obs} pure samples); too few to fit")
@@ -525,19 +523,25 @@ def _refinement_start(oriented, surface, recon, images, settings: dict):
     return light_dir_cam, albedo, minnaert_k, axis
 
 
-def _refine_pass(surface, recon, images, purity_test, settings: dict, start, gain_sigma: float, residual_gain_sigma: float) -> refine.PureSampleCloud:
-    """One refinement on ``images`` from ``start`` (:func:`_refinement_start`): the pure-sample refinement (its residual
-    test allowing ``residual_gain_sigma`` of calibration scatter) and, under a sensor in the ring's plane, the light
-    step with a gain per image (prior ``gain_sigma``)."""
+def _pure_samples(surface, recon, images, start, purity_test, settings: dict, residual_gain_sigma: float = 0.0) -> refine.PureSampleCloud:
+    """``refine.refine_by_pure_samples`` from ``start`` (light, albedo, k, axis) with the stage's settings."""
     light_dir_cam, albedo, minnaert_k, axis = start
-    poses = recon.body_to_camera()
-    pure = refine.refine_by_pure_samples(
-        surface, poses, recon.intrinsics(), images, light_dir_cam, albedo, minnaert_k,
+    return refine.refine_by_pure_samples(
+        surface, recon.body_to_camera(), recon.intrinsics(), images, light_dir_cam, albedo, minnaert_k,
         n_candidates=settings["refine_candidates"], max_offset_px=settings["refine_max_offset_px"], offset_steps=settings["refine_offset_steps"],
         purity_tolerance=purity_test, max_residual=settings["refine_max_residual"],
         min_observations=settings["min_observations_per_point"], min_cos_emission=settings["min_cos_emission"],
         axis=axis, gain_sigma=residual_gain_sigma,
     )
+
+
+def _refine_pass(surface, recon, images, purity_test, settings: dict, start, gain_sigma: float, residual_gain_sigma: float) -> refine.PureSampleCloud:
+    """One refinement on ``images`` from ``start`` (:func:`_refinement_start`): the pure-sample refinement (its residual
+    test allowing ``residual_gain_sigma`` of calibration scatter) and, under a sensor in the ring's plane, the light
+    step with a gain per image (prior ``gain_sigma``)."""
+    axis = start[3]
+    poses = recon.body_to_camera()
+    pure = _pure_samples(surface, recon, images, start, purity_test, settings, residual_gain_sigma)
     if pure.observations.n_obs < 10 * settings["min_observations_per_point"] or not np.all(np.isfinite(pure.refined_light_dir_cam)):
         raise DataFailure(
             f"the refinement kept {len(pure.points)} of {pure.n_candidates} candidate points "
