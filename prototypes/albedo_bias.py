@@ -32,16 +32,14 @@ def final_fit(observations, light):
     return table2.plausible_points(table2.run_estimator(observations, "koizumi_lm", light_init=light, hold_light=True))
 
 
-def main() -> None:
-    if len(sys.argv) < 6:
-        raise SystemExit(__doc__)
-    run, config_path, imaging, draws = Path(sys.argv[1]), sys.argv[2], sys.argv[3], int(sys.argv[4])
+def rows(run: Path, config_path: str, imaging: str, specs):
+    """For each ``SET:PRIORS`` of ``specs``: (spec, settings, the row's stage under the mesh fit's light and gains where
+    they are held, whether they are, the scoring truth). The stage is read as rule ``estimate_cloud`` reads it."""
     config = yaml.safe_load(Path(config_path).read_text())
     settings = table2.stage_settings(config["reconstruction"], "cloud")
     condition = next(c for c in config["imaging_conditions"] if c["name"] == imaging)
     res = run / "results"
-    rng = np.random.default_rng(1)
-    for spec in sys.argv[5:]:
+    for spec in specs:
         set_id, priors = spec.split(":")
         row = f"{imaging}/{set_id}/priors-{priors}"
         inputs = table2.CloudStageInputs(
@@ -49,11 +47,19 @@ def main() -> None:
         )
         stage = table2.read_cloud_stage(inputs, settings, observations=False)
         held = table2.mesh_light_of(res / f"mesh_light/{row}.npz", len(stage.images))
-        stage = table2.under_mesh_light(stage, held)
+        scoring = read_scoring_truth(res / "shape/model.npz", res / f"truth/mission/{imaging}/{set_id}.json", res / f"truth/render/{condition_rendered_set(set_id, condition)}")
+        yield spec, settings, table2.under_mesh_light(stage, held), held is not None, scoring
+
+
+def main() -> None:
+    if len(sys.argv) < 6:
+        raise SystemExit(__doc__)
+    run, config_path, imaging, draws = Path(sys.argv[1]), sys.argv[2], sys.argv[3], int(sys.argv[4])
+    rng = np.random.default_rng(1)
+    for spec, settings, stage, _, scoring in rows(run, config_path, imaging, sys.argv[5:]):
         light = stage.pure.refined_light_dir_cam
         obs = table2.final_observations(stage, settings)
         fit = final_fit(obs, light)
-        scoring = read_scoring_truth(res / "shape/model.npz", res / f"truth/mission/{imaging}/{set_id}.json", res / f"truth/render/{condition_rendered_set(set_id, condition)}")
         truth = truth_at_points(scoring, stage.transform, stage.pure.points)
         fitted = np.isfinite(fit.albedo) & np.isfinite(fit.minnaert_k)
         albedo_err, k_err = fit.albedo - truth.albedo, fit.minnaert_k - truth.minnaert_k

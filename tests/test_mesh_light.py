@@ -113,6 +113,9 @@ def test_fit_recovers_the_light_of_a_rendered_sphere():
     assert error_deg < 0.5
     assert abs(fit.minnaert_k - 0.9) < 0.04
     assert fit.n_steps >= 4
+    # The fitted surface comes back with it, on the sphere's as closely as the coarse start's flat facets allow.
+    assert fit.vertices.shape == (fit.n_vertices, 3) and fit.triangles.max() == fit.n_vertices - 1
+    assert np.abs(np.linalg.norm(fit.vertices, axis=1) - 1.0).max() < 0.02
 
 
 def test_fit_recovers_the_gains_of_a_rendered_sphere():

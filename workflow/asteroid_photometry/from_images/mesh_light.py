@@ -82,7 +82,7 @@ class MeshLightSettings:
 
 @dataclass(frozen=True)
 class MeshLight:
-    """The fit's result: the light (camera frame), the body's k, the log gains on top of the start's, and its size."""
+    """The fit's result: the light (camera frame), the body's k, the log gains on top of the start's, its size and its surface."""
 
     light_dir_cam: np.ndarray
     minnaert_k: float
@@ -92,6 +92,8 @@ class MeshLight:
     n_vertices: int
     n_steps: int
     cost: np.ndarray  # after every accepted step
+    vertices: np.ndarray  # the fitted surface: its vertices at the fitted heights (the cloud's frame)
+    triangles: np.ndarray
 
 
 def _light_basis(light):
@@ -386,7 +388,7 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
                     break
                 damping *= 10
             log.info("cast %d: %d samples, cost %.5g, k %.4f, light %s (%.0f s)", outer, n_samples, costs[-1] if costs else cost, state.k, np.round(state.light, 5).tolist(), time.perf_counter() - tick)
-    return MeshLight(state.light, float(state.k), state.log_gains, indices, n_samples, problem.nv, steps, np.array(costs))
+    return MeshLight(state.light, float(state.k), state.log_gains, indices, n_samples, problem.nv, steps, np.array(costs), problem.surface(state.h)[0], problem.F)
 
 
 def _scaled_normal(J, prior_normal, scale) -> sp.csc_matrix:
