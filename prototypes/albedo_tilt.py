@@ -35,29 +35,18 @@ from albedo_bias import final_fit, rows  # noqa: E402
 from asteroid_photometry.estimation import Observations  # noqa: E402
 from asteroid_photometry.experiments import table2  # noqa: E402
 from asteroid_photometry.experiments.table2_scoring import truth_at_points  # noqa: E402
-from asteroid_photometry.from_images import cloud as cloud_lib, mesh_light, refine  # noqa: E402
-from asteroid_photometry.from_images.purity import PurityTest  # noqa: E402
-from asteroid_photometry.world.noise import sensor_from_config  # noqa: E402
+from asteroid_photometry.from_images import refine  # noqa: E402
 
 VARIANTS = ("asis", "truth", "mesh")
 
 
-def fitted_surface(res: Path, row: str, set_id: str, imaging: str, cache: Path):
-    """The mesh fit's surface (vertices, triangles) for ``row``, fitted as rule ``mesh_light`` fits it."""
+def fitted_surface(res: Path, row: str, stage: table2.CloudStage, cache: Path):
+    """The mesh fit's surface (vertices, triangles) for ``row``, fitted as rule ``mesh_light`` fits it (from the
+    refinement's own cloud: ``stage``'s holds the mesh fit's light and gains already)."""
     out = cache / f"{row}.npz"
     if not out.exists():
-        pure = refine.PureSampleCloud.load(res / f"refined_cloud/{row}.npz")
-        mission, images = table2.read_mission(res / f"mission/{imaging}/{set_id}")
-        with np.load(res / f"registration/{row}.npz") as data:
-            oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
-        recon = table2.read_reconstruction(res / f"reconstruction/{row}")
-        gains = pure.image_gains if pure.image_gains is not None else np.ones(len(images))
-        vertices, triangles = cloud_lib.poisson_surface(oriented, depth=table2.MESH_LIGHT_POISSON_DEPTH)
-        fit = mesh_light.fit_mesh_light(
-            vertices, triangles, recon.camera_centres(), recon.body_to_camera(), recon.intrinsics(), [image / gain for image, gain in zip(images, gains)],
-            PurityTest(sensor_from_config(mission["sensor"])).sample_variance if mission.get("sensor") else None,
-            pure.refined_light_dir_cam, pure.refined_minnaert_k, float(mission.get("gain_sigma") or 0.0),
-        )
+        refined = table2.read_refined_cloud(res / f"refined_cloud/{row}.npz")
+        fit = table2.fit_mesh_light_on(refined, stage.oriented, stage.recon, stage.mission, stage.images)
         out.parent.mkdir(parents=True, exist_ok=True)
         np.savez(out, vertices=fit.vertices, triangles=fit.triangles)
     with np.load(out) as data:
@@ -115,9 +104,8 @@ def main() -> None:
         axis = refine.spin_axis(np.array(list(stage.recon.camera_centres().values())))
         rotation = stage.transform[:3, :3] / np.cbrt(np.linalg.det(stage.transform[:3, :3]))
         true_normals = truth.normals @ rotation  # body frame to the cloud's
-        sources = {"asis": None, "truth": true_normals, "mesh": None}
-        if "mesh" in VARIANTS:
-            sources["mesh"] = vertex_normals_at(*fitted_surface(res, row, set_id, imaging, cache / run.resolve().name), stage.pure.points)
+        mesh_normals = vertex_normals_at(*fitted_surface(res, row, stage, cache / run.resolve().name), stage.pure.points)
+        sources = {"asis": None, "truth": true_normals, "mesh": mesh_normals}
         parts = []
         for variant in VARIANTS:
             normals = stage.pure.normals if sources[variant] is None else with_tilt(stage.pure.normals, sources[variant], axis)

@@ -287,10 +287,22 @@ def refine_stage(registration_npz, reconstruction_dir, mission_dir, settings: di
     log.info("refinement: %d of %d candidates kept, %d pure samples, median offset %.2f px", len(pure.points), pure.n_candidates, pure.observations.n_obs, float(np.median(np.abs(pure.offset_px))))
 
 
-def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -> refine.PureSampleCloud:
+def read_registered_cloud(registration_npz) -> cloud_lib.OrientedCloud:
+    """The oriented cloud rule ``register_cloud`` wrote (its own frame); raises the recorded failure of a stage before."""
     with np.load(registration_npz) as data:
         check_npz(data, registration_npz)
-        oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+        return cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
+
+
+def read_refined_cloud(refined_npz) -> refine.PureSampleCloud:
+    """The refined cloud rule ``refine_cloud`` (or ``final_cloud``) wrote; raises the recorded failure of a stage before."""
+    with np.load(refined_npz) as data:
+        check_npz(data, refined_npz)
+    return refine.PureSampleCloud.load(refined_npz)
+
+
+def _refine(registration_npz, reconstruction_dir, mission_dir, settings: dict) -> refine.PureSampleCloud:
+    oriented = read_registered_cloud(registration_npz)
     recon = read_reconstruction(reconstruction_dir)
     mission, images = read_mission(mission_dir)
     # Images with a sensor model: the statistical purity test of that sensor; noise-free ones: the relative tolerance.
@@ -354,6 +366,21 @@ def mesh_light_skipped(pure: refine.PureSampleCloud) -> str | None:
     return None
 
 
+def fit_mesh_light_on(pure: refine.PureSampleCloud, oriented: cloud_lib.OrientedCloud, recon, mission: dict, images) -> mesh_light.MeshLight:
+    """The mesh fit as rule ``mesh_light`` runs it: on the cloud's Poisson surface (:data:`MESH_LIGHT_POISSON_DEPTH`),
+    the images over the refinement's gains, from the refinement's light and k, under the mission's sensor model and
+    stated calibration scatter. ``ValueError`` where the surface shows too few pixels."""
+    gains = pure.image_gains if pure.image_gains is not None else np.ones(len(images))
+    vertices, triangles = cloud_lib.poisson_surface(oriented, depth=MESH_LIGHT_POISSON_DEPTH)
+    return mesh_light.fit_mesh_light(
+        vertices, triangles, recon.camera_centres(), recon.body_to_camera(), recon.intrinsics(), [image / gain for image, gain in zip(images, gains)],
+        # Noise-free images: no sensor variance, the residuals over the fit's relative floor alone.
+        PurityTest(sensor_from_config(mission["sensor"])).sample_variance if mission.get("sensor") else None,
+        pure.refined_light_dir_cam, pure.refined_minnaert_k,
+        float(mission.get("gain_sigma") or 0.0),
+    )
+
+
 def mesh_light_stage(registration_npz, reconstruction_dir, mission_dir, refined_npz, out_npz) -> None:
     """The light of a shape from shading on the cloud's surface (``mesh_light.fit_mesh_light``), from the refinement's.
 
@@ -365,26 +392,13 @@ def mesh_light_stage(registration_npz, reconstruction_dir, mission_dir, refined_
     """
     tick = time.perf_counter()
     try:
-        with np.load(refined_npz) as data:
-            check_npz(data, refined_npz)
-        pure = refine.PureSampleCloud.load(refined_npz)
+        pure = read_refined_cloud(refined_npz)
         mission, images = read_mission(mission_dir)
         reason = mesh_light_skipped(pure)
         if reason is None:
-            with np.load(registration_npz) as data:
-                check_npz(data, registration_npz)
-                oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
-            recon = read_reconstruction(reconstruction_dir)
-            gains = pure.image_gains if pure.image_gains is not None else np.ones(len(images))
-            vertices, triangles = cloud_lib.poisson_surface(oriented, depth=MESH_LIGHT_POISSON_DEPTH)
+            oriented = read_registered_cloud(registration_npz)
             try:
-                fit = mesh_light.fit_mesh_light(
-                    vertices, triangles, recon.camera_centres(), recon.body_to_camera(), recon.intrinsics(), [image / gain for image, gain in zip(images, gains)],
-                    # Noise-free images: no sensor variance, the residuals over the fit's relative floor alone.
-                    PurityTest(sensor_from_config(mission["sensor"])).sample_variance if mission.get("sensor") else None,
-                    pure.refined_light_dir_cam, pure.refined_minnaert_k,
-                    float(mission.get("gain_sigma") or 0.0),
-                )
+                fit = fit_mesh_light_on(pure, oriented, read_reconstruction(reconstruction_dir), mission, images)
             except ValueError as error:
                 reason = f"the mesh fit failed ({error}): the refinement's light is kept"
     except DataFailure as failure:
@@ -446,9 +460,7 @@ def final_cloud_stage(registration_npz, reconstruction_dir, mission_dir, refined
     (:func:`final_cloud_path`).
     """
     try:
-        with np.load(refined_npz) as data:
-            check_npz(data, refined_npz)
-        pure = refine.PureSampleCloud.load(refined_npz)
+        pure = read_refined_cloud(refined_npz)
         mission, images = read_mission(mission_dir)
         held = mesh_light_of(mesh_light_npz, len(images))
         if held is None or mission.get("sensor"):
@@ -456,10 +468,7 @@ def final_cloud_stage(registration_npz, reconstruction_dir, mission_dir, refined
             log.info("the refinement's cloud is the final one: %s", reason)
             files.savez(out_npz, status=np.str_(OK), refitted=False, reason=np.str_(reason))
             return
-        with np.load(registration_npz) as data:
-            check_npz(data, registration_npz)
-            oriented = cloud_lib.OrientedCloud(data["points"], data["normals"], data["track_length"])
-        refitted = refit_under_light(pure, oriented, read_reconstruction(reconstruction_dir), images, held, settings)
+        refitted = refit_under_light(pure, read_registered_cloud(registration_npz), read_reconstruction(reconstruction_dir), images, held, settings)
     except DataFailure as failure:
         write_failed_npz(out_npz, record("final_cloud", failure))
         return
@@ -653,9 +662,8 @@ def read_cloud_stage(inputs: CloudStageInputs, settings: dict, observations: boo
     """
     registration = json.loads(Path(inputs.registration_json).read_text())
     check_status(registration, inputs.registration_json)  # a failed registration's transform is wrong: nothing is scored through it
-    refined_npz = final_cloud_path(inputs.refined_npz, inputs.final_cloud_npz)
-    with np.load(refined_npz) as data:
-        check_npz(data, refined_npz)
+    # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
+    pure = read_refined_cloud(final_cloud_path(inputs.refined_npz, inputs.final_cloud_npz))
     recon = read_reconstruction(inputs.reconstruction_dir)
     with np.load(inputs.registration_npz) as data:
         check_npz(data, inputs.registration_npz)
@@ -667,8 +675,6 @@ def read_cloud_stage(inputs: CloudStageInputs, settings: dict, observations: boo
         obs, _ = cloud_observations_of(oriented, recon, images, settings)
         require_cloud_observations(obs, settings, f"the reconstruction ({recon.report.n_images_registered} images, {len(oriented.points)} cloud points)")
     report = json.loads((Path(inputs.reconstruction_dir) / "report.json").read_text())
-    # Refinement: samples moved to where the images show them pure, normals fitted to them (refine_stage).
-    pure = refine.PureSampleCloud.load(refined_npz)
     return CloudStage(registration, report, recon, oriented, transform, mission, images, obs, pure)
 
 
