@@ -197,9 +197,57 @@ def test_scaled_normal_is_the_damped_system_of_the_scaled_jacobian():
     normal = mesh_light._scaled_normal(J, (P.T @ P).tocsr(), scale)
     S = sp.diags(scale)
     expected = ((J @ S).T @ (J @ S) + (P @ S).T @ (P @ S)).toarray() + 1e-3 * np.eye(n)
-    np.testing.assert_allclose(mesh_light._solve(normal, gradient, 1e-3), np.linalg.solve(expected, gradient), rtol=1e-9, atol=1e-12)
+    order = rng.permutation(n)  # the elimination order changes the arithmetic, not the step
+    np.testing.assert_allclose(mesh_light._solve(normal, gradient, 1e-3, order), np.linalg.solve(expected, gradient), rtol=1e-9, atol=1e-12)
     # The damping is added to a copy: the matrix is the same for the next attempt.
     np.testing.assert_allclose(normal.toarray() + 1e-3 * np.eye(n), expected, rtol=1e-12, atol=1e-14)
+
+
+def _geodesic_sphere(subdivisions: int):
+    mesh = o3d.geometry.TriangleMesh.create_icosahedron(radius=1.0).subdivide_midpoint(number_of_iterations=subdivisions)
+    vertices = np.asarray(mesh.vertices) / np.linalg.norm(np.asarray(mesh.vertices), axis=1, keepdims=True)
+    return vertices, np.asarray(mesh.triangles).copy()
+
+
+def test_elimination_order_dissects_the_surface():
+    """The step's elimination order: every unknown once, the shared ones (k, light, gains) last, each cell's albedo and
+    k offset side by side; and an LU of the step's matrix in this order fills in less than in COLAMD's (what the fit
+    used before; 0.76 of it on this sphere of 10,242 vertices, about 0.55 on a paper set's surface) and far less than
+    in the mesh's own numbering (0.18)."""
+    from scipy.sparse.linalg import splu
+
+    vertices, triangles = _geodesic_sphere(5)
+    settings = mesh_light.MeshLightSettings()
+    problem = mesh_light._MeshProblem(vertices, triangles, vertices.copy(), 0.01, 6, 0.02, settings)
+    order = problem.order
+    np.testing.assert_array_equal(np.sort(order), np.arange(problem.n_par))
+    np.testing.assert_array_equal(order[-9:], [problem.o_k, problem.o_l, problem.o_l + 1, *(problem.o_g + np.arange(6))])
+    position = np.argsort(order)
+    cells = np.arange(problem.ncell)
+    np.testing.assert_array_equal(np.abs(position[problem.o_dk + cells] - position[problem.o_a + cells]), 1)
+    # The step's matrix: samples on every face from six views around the equator.
+    rng = np.random.default_rng(2)
+    face = np.repeat(np.arange(len(triangles)), 3)
+    image = rng.integers(0, 6, len(face))
+    angles = 2 * np.pi * image / 6
+    view = np.column_stack([np.sin(angles), np.zeros(len(face)), np.cos(angles)])
+    samples = mesh_light._Samples(face, image, view, rng.normal(-1.0, 0.05, len(face)), np.full(len(face), 0.05))
+    cell = problem.cell[face]
+    samples.columns = np.column_stack([triangles[face], problem.o_a + cell, np.full(len(face), problem.o_k), problem.o_dk + cell,
+                                       np.full(len(face), problem.o_l), np.full(len(face), problem.o_l + 1), problem.o_g + image])
+    rotations = np.array([np.eye(3)] * 6)
+    state = mesh_light._State(np.zeros(problem.nv), np.zeros(problem.ncell), 0.8, np.zeros(problem.ncell), _light(0.0), np.zeros(6))
+    _, _, J = mesh_light._residuals(problem, samples, state, rotations, jacobian=True)
+    normal = mesh_light._scaled_normal(J, problem.prior_normal, np.ones(problem.n_par))
+    normal.setdiag(normal.diagonal() + 1.0)
+
+    def fill(matrix, spec):
+        lu = splu(matrix, permc_spec=spec, diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+        return lu.L.nnz + lu.U.nnz
+
+    dissected = fill(normal[order][:, order].tocsc(), "NATURAL")
+    assert dissected < 0.9 * fill(normal, "COLAMD")
+    assert dissected < 0.25 * fill(normal, "NATURAL")
 
 
 def test_blur_matrix_is_the_psf_over_the_support():

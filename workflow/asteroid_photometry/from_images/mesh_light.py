@@ -28,7 +28,8 @@ priors (in its own scale) gets the same settings. Residuals in log brightness
 are over the sensor's noise plus a relative floor (``floor``), weighed by a
 Cauchy loss of ``robust`` sigmas. The samples are cast again after every
 ``inner`` steps, ``outer`` times. Each step solves the damped, column-scaled
-normal equations by a sparse LU.
+normal equations by a sparse LU, its unknowns eliminated in a nested
+dissection of the surface (``_dissection_order``).
 
 Everything comes from the images, the reconstruction and the refinement's
 output: no truth is read.
@@ -135,6 +136,21 @@ class _MeshProblem:
         self.prior = sp.csr_matrix((vals, (rows, cols)), shape=(self.nv + ne + nc + ni + 1, self.n_par))
         self.prior_normal = (self.prior.T @ self.prior).tocsr()
         self.prior_colsq = np.asarray(self.prior.multiply(self.prior).sum(axis=0)).ravel()
+        self.order = self._elimination_order(triangles)
+
+    def _elimination_order(self, triangles) -> np.ndarray:
+        """The order the step's LU eliminates the unknowns in: the heights and each cell's albedo and k offset in a
+        nested dissection of the surface, then the unknowns every sample or every image's samples share (the body's k,
+        the light, the gains), whose rows of the normal matrix are dense."""
+        cell_vertices = sp.csr_matrix((np.ones(3 * len(triangles)), (np.repeat(self.cell, 3), triangles.ravel())), shape=(self.ncell, self.nv))
+        cell_vertices.sum_duplicates()
+        order = _dissection_order(self.P0, triangles, cell_vertices)
+        # A cell's albedo and k offset are eliminated one after the other, where the dissection puts the cell.
+        order = np.repeat(order, np.where(order >= self.nv, 2, 1))
+        slot = order >= self.nv
+        cell = order[slot] - self.nv
+        order[slot] = np.where(np.arange(len(cell)) % 2 == 0, self.o_a + cell, self.o_dk + cell)
+        return np.concatenate([order, [self.o_k, self.o_l, self.o_l + 1], self.o_g + np.arange(self.n_images)])
 
     def surface(self, h):
         """Vertices, triangle corners, unnormalised face normals and their lengths at heights ``h``."""
@@ -377,7 +393,7 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
             gradient = -(J.T @ r + problem.prior.T @ prior_r) / colnorm
             normal = _scaled_normal(J, problem.prior_normal, 1 / colnorm)
             for _attempt in range(MAX_ATTEMPTS):
-                y = _solve(normal, gradient, damping)
+                y = _solve(normal, gradient, damping, problem.order)
                 trial = state.stepped(problem, y / colnorm)
                 rn, prn, _ = _residuals(problem, samples, trial, rotations, jacobian=False)
                 cost_new = 0.5 * (rn @ rn + prn @ prn)
@@ -401,9 +417,60 @@ def _scaled_normal(J, prior_normal, scale) -> sp.csc_matrix:
     return normal
 
 
-def _solve(normal: sp.csc_matrix, gradient, damping: float):
-    """The damped step of the column-scaled system, (normal + damping I) y = gradient, by a sparse LU."""
+def _solve(normal: sp.csc_matrix, gradient, damping: float, order: np.ndarray):
+    """The damped step of the column-scaled system, (normal + damping I) y = gradient, by a sparse LU that eliminates
+    the unknowns in ``order`` (a permutation of them)."""
     damped = normal.copy()
     damped.setdiag(damped.diagonal() + damping)
-    # COLAMD's ordering: more fill than a minimum degree's, but factored in less than half the time here.
-    return splu(damped, permc_spec="COLAMD", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True)).solve(gradient)
+    # SuperLU's own orders: COLAMD's takes 1.8 to 3 times as long on the fit's surfaces; its minimum degree's is faster on
+    # some, nine times slower on a regular mesh (docs/dropped.md).
+    lu = splu(damped[order][:, order].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    y = np.empty_like(gradient)
+    y[order] = lu.solve(gradient[order])
+    return y
+
+
+def _dissection_order(points, triangles, groups: sp.csr_matrix, leaf: int = 64) -> np.ndarray:
+    """A nested dissection order of a surface's vertices (``points``, ``triangles``) and of groups of them (``groups``:
+    a group by vertex incidence matrix), groups numbered after the vertices.
+
+    The vertices are cut in two by the plane through their median along their widest extent; the separator is the
+    vertices on one side with an edge to the other, and every group with vertices on both. Each half is ordered the same
+    way, then the separator last, down to ``leaf`` nodes. On a surface the separators are curves, so the LU's fill grows
+    about as n log n (scipy has no nested dissection; SuperLU's minimum degree orders are unreliable on regular meshes).
+    """
+    nv = len(points)
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    adjacency = sp.csr_matrix((np.ones(2 * len(edges)), (edges.ravel(), edges[:, ::-1].ravel())), shape=(nv, nv))
+    side = np.zeros(nv, np.int8)  # 1 and 2: the two halves of the current cut, 0 elsewhere
+
+    def touching(matrix: sp.csr_matrix, rows, value):
+        """Which of ``rows`` have a column whose side is ``value``."""
+        sub = matrix[rows]
+        hit = np.zeros(len(rows), bool)
+        hit[np.repeat(np.arange(len(rows)), np.diff(sub.indptr))[side[sub.indices] == value]] = True
+        return hit
+
+    out = []
+
+    def dissect(vertices, groups_here):
+        if len(vertices) + len(groups_here) <= leaf or len(vertices) < 2:
+            out.extend([vertices, nv + groups_here])
+            return
+        span = points[vertices].max(axis=0) - points[vertices].min(axis=0)
+        coordinate = points[vertices, int(np.argmax(span))]
+        first = coordinate < np.median(coordinate)
+        if first.all() or not first.any():
+            out.extend([vertices, nv + groups_here])
+            return
+        one, two = vertices[first], vertices[~first]
+        side[one], side[two] = 1, 2
+        in_one, in_two = touching(groups, groups_here, 1), touching(groups, groups_here, 2)
+        separator = touching(adjacency, one, 2)
+        side[vertices] = 0
+        dissect(one[~separator], groups_here[~in_two])
+        dissect(two, groups_here[in_two & ~in_one])
+        out.extend([one[separator], nv + groups_here[in_one & in_two]])
+
+    dissect(np.arange(nv), np.arange(groups.shape[0]))
+    return np.concatenate(out).astype(np.int64)
