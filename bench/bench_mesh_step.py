@@ -5,7 +5,7 @@ Rule ``mesh_light`` is the workflow's largest stage (about half of its
 job-seconds), and most of each of its fits goes into eight solves of a system
 the size of the surface's vertices. This script builds that system at the
 size of a paper set's fit (by default a geodesic sphere of 163,842 vertices,
-about 4,800 cells, 36 images on the equator, about 2 million samples of 1 %
+2,936 cells, 36 images on the equator, about 2 million samples of 1 %
 noise; the matrix is the Jacobian's column-scaled normal matrix, assembled as
 the fit assembles it) and solves one damped step, in this one process, with
 
