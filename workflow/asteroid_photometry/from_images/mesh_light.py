@@ -125,7 +125,7 @@ class _MeshProblem:
         self.o_l = self.o_dk + self.ncell
         self.o_g = self.o_l + 2
         self.n_par = self.o_g + n_images
-        edges = np.unique(np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1), axis=0)
+        self.edges = edges = np.unique(np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1), axis=0)
         sigma_h, sigma_edge = settings.sigma_h_px * footprint, settings.sigma_edge_px * footprint
         self.gain_sigma = max(gain_sigma / 2, GAINS_HELD)  # half the stated scatter; none stated: held at one
         ne, nc, ni = len(edges), self.ncell, n_images
@@ -144,7 +144,7 @@ class _MeshProblem:
         the light, the gains), whose rows of the normal matrix are dense."""
         cell_vertices = sp.csr_matrix((np.ones(3 * len(triangles)), (np.repeat(self.cell, 3), triangles.ravel())), shape=(self.ncell, self.nv))
         cell_vertices.sum_duplicates()
-        order = _dissection_order(self.P0, triangles, cell_vertices)
+        order = _dissection_order(self.P0, self.edges, cell_vertices)
         # A cell's albedo and k offset are eliminated one after the other, where the dissection puts the cell.
         order = np.repeat(order, np.where(order >= self.nv, 2, 1))
         slot = order >= self.nv
@@ -430,8 +430,8 @@ def _solve(normal: sp.csc_matrix, gradient, damping: float, order: np.ndarray):
     return y
 
 
-def _dissection_order(points, triangles, groups: sp.csr_matrix, leaf: int = 64) -> np.ndarray:
-    """A nested dissection order of a surface's vertices (``points``, ``triangles``) and of groups of them (``groups``:
+def _dissection_order(points, edges, groups: sp.csr_matrix, leaf: int = 64) -> np.ndarray:
+    """A nested dissection order of a surface's vertices (``points``, ``edges``: vertex pairs) and of groups of them (``groups``:
     a group by vertex incidence matrix), groups numbered after the vertices.
 
     The vertices are cut in two by the plane through their median along their widest extent; the separator is the
@@ -440,7 +440,6 @@ def _dissection_order(points, triangles, groups: sp.csr_matrix, leaf: int = 64) 
     about as n log n (scipy has no nested dissection; SuperLU's minimum degree orders are unreliable on regular meshes).
     """
     nv = len(points)
-    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     adjacency = sp.csr_matrix((np.ones(2 * len(edges)), (edges.ravel(), edges[:, ::-1].ravel())), shape=(nv, nv))
     side = np.zeros(nv, np.int8)  # 1 and 2: the two halves of the current cut, 0 elsewhere
 
