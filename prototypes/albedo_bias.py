@@ -63,8 +63,7 @@ def main() -> None:
         truth = truth_at_points(scoring, stage.transform, stage.pure.points)
         fitted = np.isfinite(fit.albedo) & np.isfinite(fit.minnaert_k)
         albedo_err, k_err = fit.albedo - truth.albedo, fit.minnaert_k - truth.minnaert_k
-        per_point = np.bincount(obs.point_index, minlength=obs.n_points)
-        mean_cos_e = np.bincount(obs.point_index, weights=obs.cos_emission, minlength=obs.n_points) / np.maximum(per_point, 1)
+        mean_cos_e = obs.point_means(obs.cos_emission)
         print(f"{spec}: {fitted.sum()} points, albedo {albedo_err[fitted].mean():+.4f} (median {np.median(albedo_err[fitted]):+.4f}), k {k_err[fitted].mean():+.4f}", flush=True)
         for low, high in BINS:
             chosen = fitted & (mean_cos_e >= low) & (mean_cos_e < high)

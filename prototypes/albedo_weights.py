@@ -48,8 +48,7 @@ def tilt_sensitivity(obs, image, normals, light, k_point) -> np.ndarray:
         rows_j = image == j
         to_camera, _ = Rotation.align_vectors(n[rows_j], normals[obs.point_index[rows_j]])
         cloud[rows_j] = to_camera.inv().apply(d[rows_j])
-    count = np.maximum(np.bincount(obs.point_index, minlength=obs.n_points), 1)
-    g = np.column_stack([np.bincount(obs.point_index, weights=cloud[:, a], minlength=obs.n_points) for a in range(3)]) / count[:, None]
+    g = obs.point_means(cloud)
     return np.sum(g * g, axis=1)
 
 
@@ -71,8 +70,7 @@ def main() -> None:
         albedo_err = (fit.albedo - np.broadcast_to(truth.albedo, fit.albedo.shape))[ok]
         k_err = (fit.minnaert_k - np.broadcast_to(truth.minnaert_k, fit.albedo.shape))[ok]
         s2 = tilt_sensitivity(obs, final_image_index(stage, settings), stage.pure.normals, light, np.nan_to_num(fit.minnaert_k, nan=1.0))[ok]
-        count = np.maximum(np.bincount(obs.point_index, minlength=obs.n_points), 1)
-        mean_cos_e = (np.bincount(obs.point_index, weights=obs.cos_emission, minlength=obs.n_points) / count)[ok]
+        mean_cos_e = obs.point_means(obs.cos_emission)[ok]
         variants = [("mean", np.ones(ok.sum()))]
         variants += [(f"weights e={e:g}", 1.0 / (e + s2)) for e in args.eps]
         variants += [(f"cut {c:g}", (mean_cos_e >= c).astype(float)) for c in args.cuts]

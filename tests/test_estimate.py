@@ -82,6 +82,8 @@ def test_observations_are_copied_read_only_and_derive_cos_emission():
     assert obs.point_index.dtype == np.int64 and obs.normal_cam.dtype == np.float64
     assert np.allclose(obs.cos_emission, [1.0, 0.8, 0.8])
     assert obs.n_obs == 3 and list(obs.observations_per_point) == [1, 2, 0]
+    assert np.allclose(obs.point_means(obs.brightness), [0.5, 0.35, 0.0])
+    assert np.allclose(obs.point_means(obs.view_cam)[1], obs.view_cam[1:].mean(axis=0)) and obs.point_means(obs.view_cam).shape == (3, 3)
     with pytest.raises(ValueError):
         obs.brightness[0] = 1.0
     arrays["brightness"][0] = 9.0  # the caller's array is not shared

@@ -148,6 +148,15 @@ class Observations:
         """Number of observations of each point, int64 (n_points,)."""
         return np.bincount(self.point_index, minlength=self.n_points)
 
+    def point_means(self, values) -> np.ndarray:
+        """The mean over each point's rows of ``values`` (one per row, or one row of columns per row): (n_points,) or
+        (n_points, columns); 0 for a point without rows."""
+        values = np.asarray(values, dtype=np.float64)
+        columns = values.reshape(self.n_obs, -1)
+        sums = np.column_stack([np.bincount(self.point_index, weights=column, minlength=self.n_points) for column in columns.T])
+        means = sums / np.maximum(self.observations_per_point, 1)[:, None]
+        return means.reshape((self.n_points,) + values.shape[1:])
+
     def cos_incidence(self, light_dir_cam) -> np.ndarray:
         """``n . l`` per observation for a camera-frame light direction (unclamped)."""
         return self.normal_cam @ np.asarray(light_dir_cam, dtype=np.float64)

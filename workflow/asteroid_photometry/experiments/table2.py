@@ -744,9 +744,7 @@ FREE_TILT_MIN_MEAN_COS_INCIDENCE = 0.5
 def well_lit_points(observations: estimation.Observations, light_dir_cam, min_mean_cos_incidence: float) -> estimation.Observations:
     """The rows of the points whose rows ``light_dir_cam`` lights at a mean incidence cosine of at least
     ``min_mean_cos_incidence``; the other points lose all their rows, the points' numbering is kept."""
-    per_point = np.bincount(observations.point_index, minlength=observations.n_points)
-    mean_cos = np.bincount(observations.point_index, weights=observations.cos_incidence(light_dir_cam), minlength=observations.n_points)
-    mean_cos = mean_cos / np.maximum(per_point, 1)
+    mean_cos = observations.point_means(observations.cos_incidence(light_dir_cam))
     return observations.rows(mean_cos[observations.point_index] >= min_mean_cos_incidence)
 
 
