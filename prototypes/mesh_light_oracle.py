@@ -8,6 +8,7 @@ default settings) from the refinement's light and k, as rule ``mesh_light`` does
 - ``truecam``: that surface moved into the body frame by the registration, seen through the true cameras;
 - ``trueshape``: the shape model's own facets through the true cameras;
 - ``trueshapegain``: as ``trueshape``, the images divided by the true calibration gains, the gains then held;
+- ``trueshapezF``: as ``trueshape``, the shape model scaled along the spin axis by the factor F (``trueshapez0.98``);
 - any of them with ``_psf``: the model blurred by the mission's stated PSF (``fit_mesh_light``'s ``psf``).
 
 It reads the truth (the mission set's truth file, the shape model) for the oracles and to print each light's error:
@@ -65,12 +66,16 @@ def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str]
             geometry = (vertices, triangles, centres, poses, stage.recon.intrinsics())
         elif name == "truecam":
             geometry = (register.transform_points(stage.transform, vertices), triangles, true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
+        elif name.startswith("trueshapez"):
+            # The shape model squashed or stretched along the spin axis (about the body's origin) by the factor after "z".
+            squashed = shape["vertices_m"] * np.array([1.0, 1.0, float(name.removeprefix("trueshapez"))])
+            geometry = (squashed, shape["faces"], true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
         elif name in ("trueshape", "trueshapegain"):
             geometry = (shape["vertices_m"], shape["faces"], true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
             if name == "trueshapegain":
                 images, gain_sigma = [image / gain for image, gain in zip(stage.images, truth["gains"])], 0.0
         else:
-            raise SystemExit(f"unknown variant {variant!r}: base, truecam, trueshape, trueshapegain, each optionally with _psf")
+            raise SystemExit(f"unknown variant {variant!r}: base, truecam, trueshape, trueshapegain, trueshapezF, each optionally with _psf")
         tick = time.perf_counter()
         fit = mesh_light.fit_mesh_light(*geometry, images, variance, pure.refined_light_dir_cam, pure.refined_minnaert_k, gain_sigma, psf=psf)
         cells.append(f"{variant} {angle_deg(fit.light_dir_cam, true_light):.3f} (y {fit.light_dir_cam[1]:+.4f}) k {fit.minnaert_k:.3f} {time.perf_counter() - tick:.0f}s")
