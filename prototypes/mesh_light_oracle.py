@@ -66,12 +66,10 @@ def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str]
             geometry = (vertices, triangles, centres, poses, stage.recon.intrinsics())
         elif name == "truecam":
             geometry = (register.transform_points(stage.transform, vertices), triangles, true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
-        elif name.startswith("trueshapez"):
-            # The shape model squashed or stretched along the spin axis (about the body's origin) by the factor after "z".
-            squashed = shape["vertices_m"] * np.array([1.0, 1.0, float(name.removeprefix("trueshapez"))])
-            geometry = (squashed, shape["faces"], true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
-        elif name in ("trueshape", "trueshapegain"):
-            geometry = (shape["vertices_m"], shape["faces"], true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
+        elif name in ("trueshape", "trueshapegain") or name.startswith("trueshapez"):
+            # trueshapezF: squashed or stretched along the spin axis (about the body's origin) by the factor F.
+            along_spin = float(name.removeprefix("trueshapez")) if name.startswith("trueshapez") else 1.0
+            geometry = (shape["vertices_m"] * np.array([1.0, 1.0, along_spin]), shape["faces"], true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
             if name == "trueshapegain":
                 images, gain_sigma = [image / gain for image, gain in zip(stage.images, truth["gains"])], 0.0
         else:
