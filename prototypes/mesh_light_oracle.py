@@ -9,7 +9,13 @@ default settings) from the refinement's light and k, as rule ``mesh_light`` does
 - ``trueshape``: the shape model's own facets through the true cameras;
 - ``trueshapegain``: as ``trueshape``, the images divided by the true calibration gains, the gains then held;
 - ``trueshapezF``: as ``trueshape``, the shape model scaled along the spin axis by the factor F (``trueshapez0.98``);
+- ``heightsR``: as ``truecam`` on the workflow's surface (octree depth 8), the vertices of region R each moved along
+  its normal onto the shape model (the height the mesh fit would need there): ``all``, ``north`` or ``south`` (normal more than 20 degrees out of the equator's
+  plane, towards either pole), ``band`` (within 20 degrees of it) or ``none``;
 - any of them with ``_psf``: the model blurred by the mission's stated PSF (``fit_mesh_light``'s ``psf``).
+
+The fit runs at its default settings, or at those of the environment variable ``MESH_LIGHT_SETTINGS``
+(``MeshLightSettings`` fields, e.g. ``sigma_dk=0.1,cell_px=7``), in every variant.
 
 It reads the truth (the mission set's truth file, the shape model) for the oracles and to print each light's error:
 never use it inside the workflow.
@@ -20,6 +26,7 @@ never use it inside the workflow.
 
 import json
 import logging
+import os
 import sys
 import time
 from pathlib import Path
@@ -41,7 +48,35 @@ def angle_deg(a, b) -> float:
     return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
 
 
-def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str], shape: dict, settings: dict) -> str:
+def heights_onto(vertices, triangles, shape: dict, region: str, edge: float):
+    """``vertices``/``triangles`` subdivided to edges of about ``edge`` (as the mesh fit would subdivide them), then the
+    vertices of ``region`` (see the module's docstring) moved along their normals onto the shape model's surface, to the
+    nearest crossing within 30 m either way; the others, and those with no crossing, left where they are."""
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
+    while np.median(np.linalg.norm(vertices[triangles[:, 0]] - vertices[triangles[:, 1]], axis=1)) > edge:
+        mesh = mesh.subdivide_midpoint(number_of_iterations=1)
+        vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    normals = np.asarray(mesh.compute_vertex_normals().vertex_normals)
+    up = normals[:, 2]
+    chosen = {"all": np.ones(len(up), bool), "north": up > np.sin(np.radians(20)), "south": up < -np.sin(np.radians(20)), "band": np.abs(up) <= np.sin(np.radians(20)), "none": np.zeros(len(up), bool)}[region]
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(shape["vertices_m"].astype(np.float32)), o3d.core.Tensor(shape["faces"].astype(np.uint32)))
+    steps = []
+    for sign in (1.0, -1.0):
+        rays = np.hstack([vertices, sign * normals]).astype(np.float32)
+        steps.append(sign * scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy())
+    forward, backward = steps
+    step = np.where(np.abs(forward) <= np.abs(backward), forward, backward)
+    move = chosen & (np.abs(step) <= 30.0)
+    print(f"  heights{region}: {move.sum()} of {len(up)} vertices moved, median |step| {np.median(np.abs(step[move])) if move.any() else 0:.2f} m", flush=True)
+    out = vertices.copy()
+    out[move] += step[move, None] * normals[move]
+    return out, triangles
+
+
+def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str], shape: dict, settings: dict, fit_settings) -> str:
     results = run / "results"
     inputs = table2.CloudStageInputs(
         results / f"registration/{condition}/{set_id}/priors-{priors}.npz", results / f"registration/{condition}/{set_id}/priors-{priors}.json",
@@ -54,6 +89,7 @@ def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str]
     pure = stage.pure
     gains = pure.image_gains if pure.image_gains is not None else np.ones(len(stage.images))
     vertices, triangles = cloud_lib.poisson_surface(stage.oriented)
+    deep = cloud_lib.poisson_surface(stage.oriented, depth=table2.MESH_LIGHT_POISSON_DEPTH)
     poses, centres = stage.recon.body_to_camera(), stage.recon.camera_centres()
     true_poses = {i: np.asarray(truth["images"][i]["body_to_camera"], float) for i in poses}
     true_centres = {i: -pose[:3, :3].T @ pose[:3, 3] for i, pose in true_poses.items()}
@@ -72,10 +108,15 @@ def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str]
             geometry = (shape["vertices_m"] * np.array([1.0, 1.0, along_spin]), shape["faces"], true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
             if name == "trueshapegain":
                 images, gain_sigma = [image / gain for image, gain in zip(stage.images, truth["gains"])], 0.0
+        elif name.startswith("heights"):
+            intrinsics = Intrinsics(**stage.mission["intrinsics"])
+            edge = fit_settings.edge_px * float(np.median([np.linalg.norm(c) for c in true_centres.values()])) / intrinsics.focal_px
+            moved = heights_onto(register.transform_points(stage.transform, deep[0]), deep[1], shape, name.removeprefix("heights"), edge)
+            geometry = (*moved, true_centres, true_poses, intrinsics)
         else:
-            raise SystemExit(f"unknown variant {variant!r}: base, truecam, trueshape, trueshapegain, trueshapezF, each optionally with _psf")
+            raise SystemExit(f"unknown variant {variant!r}: base, truecam, trueshape, trueshapegain, trueshapezF, heightsR, each optionally with _psf")
         tick = time.perf_counter()
-        fit = mesh_light.fit_mesh_light(*geometry, images, variance, pure.refined_light_dir_cam, pure.refined_minnaert_k, gain_sigma, psf=psf)
+        fit = mesh_light.fit_mesh_light(*geometry, images, variance, pure.refined_light_dir_cam, pure.refined_minnaert_k, gain_sigma, psf=psf, settings=fit_settings)
         cells.append(f"{variant} {angle_deg(fit.light_dir_cam, true_light):.3f} (y {fit.light_dir_cam[1]:+.4f}) k {fit.minnaert_k:.3f} {time.perf_counter() - tick:.0f}s")
     return f"{set_id}:{priors} " + " | ".join(cells)
 
@@ -85,13 +126,16 @@ def main() -> None:
         raise SystemExit(__doc__)
     logging.disable(logging.WARNING)
     run, condition, variants = Path(sys.argv[1]), sys.argv[2], sys.argv[3].split(",")
+    # MESH_LIGHT_SETTINGS="sigma_dk=0.1,cell_px=7": the fit's settings (MeshLightSettings fields) for every variant.
+    spec = os.environ.get("MESH_LIGHT_SETTINGS", "")
+    fit_settings = mesh_light.MeshLightSettings(**{key: float(value) for key, value in (item.split("=") for item in spec.split(",") if item)})
     config = yaml.safe_load(Path("config/config.yaml").read_text())
     settings = table2.stage_settings(config["reconstruction"], "cloud")
     with np.load(run / "results/shape/model.npz") as data:
         shape = {key: data[key] for key in ("vertices_m", "faces")}
     for spec in sys.argv[4:]:
         set_id, priors = spec.split(":")
-        print(row(run, condition, set_id, priors, variants, shape, settings), flush=True)
+        print(row(run, condition, set_id, priors, variants, shape, settings, fit_settings), flush=True)
 
 
 if __name__ == "__main__":
