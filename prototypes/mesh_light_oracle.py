@@ -4,7 +4,9 @@ An offline experiment on Table 2 rows of a finished run (docs/amica_record.md, "
 light 0 comes from"). For each row it runs the workflow's mesh fit (``from_images.mesh_light.fit_mesh_light``, its
 default settings) from the refinement's light and k, as rule ``mesh_light`` does, in these variants:
 
-- ``base``: the cloud's Poisson surface and the reconstructed cameras (what the workflow does);
+- ``base``: the cloud's Poisson surface (octree depth 7) and the reconstructed cameras (what the workflow did before
+  46d0b84);
+- ``workflow``: as ``base`` on the surface of depth 8 (what rule ``mesh_light`` does);
 - ``truecam``: that surface moved into the body frame by the registration, seen through the true cameras;
 - ``trueshape``: the shape model's own facets through the true cameras;
 - ``trueshapegain``: as ``trueshape``, the images divided by the true calibration gains, the gains then held;
@@ -100,6 +102,8 @@ def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str]
         images, gain_sigma = [image / gain for image, gain in zip(stage.images, gains)], float(stage.mission.get("gain_sigma") or 0.0)
         if name == "base":
             geometry = (vertices, triangles, centres, poses, stage.recon.intrinsics())
+        elif name == "workflow":
+            geometry = (*deep, centres, poses, stage.recon.intrinsics())
         elif name == "truecam":
             geometry = (register.transform_points(stage.transform, vertices), triangles, true_centres, true_poses, Intrinsics(**stage.mission["intrinsics"]))
         elif name in ("trueshape", "trueshapegain") or name.startswith("trueshapez"):
@@ -114,7 +118,7 @@ def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str]
             moved = heights_onto(register.transform_points(stage.transform, deep[0]), deep[1], shape, name.removeprefix("heights"), edge)
             geometry = (*moved, true_centres, true_poses, intrinsics)
         else:
-            raise SystemExit(f"unknown variant {variant!r}: base, truecam, trueshape, trueshapegain, trueshapezF, heightsR, each optionally with _psf")
+            raise SystemExit(f"unknown variant {variant!r}: base, workflow, truecam, trueshape, trueshapegain, trueshapezF, heightsR, each optionally with _psf")
         tick = time.perf_counter()
         fit = mesh_light.fit_mesh_light(*geometry, images, variance, pure.refined_light_dir_cam, pure.refined_minnaert_k, gain_sigma, psf=psf, settings=fit_settings)
         cells.append(f"{variant} {angle_deg(fit.light_dir_cam, true_light):.3f} (y {fit.light_dir_cam[1]:+.4f}) k {fit.minnaert_k:.3f} {time.perf_counter() - tick:.0f}s")
