@@ -1,8 +1,8 @@
 """Prototype, not part of the workflow: where the mesh fit's light error comes from, the truth put in one part at a time.
 
 An offline experiment on Table 2 rows of a finished run (docs/amica_record.md, "Where the mesh fit's light error at
-light 0 comes from"). For each row it runs the workflow's mesh fit (``from_images.mesh_light.fit_mesh_light``, its
-default settings) from the refinement's light and k, as rule ``mesh_light`` does, in these variants:
+light 0 comes from"). For each row it runs the workflow's mesh fit (``from_images.mesh_light.fit_mesh_light``) from
+the refinement's light and k, as rule ``mesh_light`` does, in these variants:
 
 - ``base``: the cloud's Poisson surface (octree depth 7) and the reconstructed cameras (what the workflow did before
   46d0b84);
@@ -12,8 +12,9 @@ default settings) from the refinement's light and k, as rule ``mesh_light`` does
 - ``trueshapegain``: as ``trueshape``, the images divided by the true calibration gains, the gains then held;
 - ``trueshapezF``: as ``trueshape``, the shape model scaled along the spin axis by the factor F (``trueshapez0.98``);
 - ``heightsR``: as ``truecam`` on the workflow's surface (octree depth 8), the vertices of region R each moved along
-  its normal onto the shape model (the height the mesh fit would need there): ``all``, ``north`` or ``south`` (normal more than 20 degrees out of the equator's
-  plane, towards either pole), ``band`` (within 20 degrees of it) or ``none``;
+  its normal onto the shape model (the height the mesh fit would need there): ``all``, ``north`` or ``south`` (normal
+  more than 20 degrees out of the equator's plane, towards either pole), ``band`` (within 20 degrees of it) or
+  ``none``;
 - any of them with ``_psf``: the model blurred by the mission's stated PSF (``fit_mesh_light``'s ``psf``).
 
 The fit runs at its default settings, or at those of the environment variable ``MESH_LIGHT_SETTINGS``
@@ -61,8 +62,11 @@ def heights_onto(vertices, triangles, shape: dict, region: str, edge: float):
         mesh = mesh.subdivide_midpoint(number_of_iterations=1)
         vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
     normals = np.asarray(mesh.compute_vertex_normals().vertex_normals)
-    up = normals[:, 2]
-    chosen = {"all": np.ones(len(up), bool), "north": up > np.sin(np.radians(20)), "south": up < -np.sin(np.radians(20)), "band": np.abs(up) <= np.sin(np.radians(20)), "none": np.zeros(len(up), bool)}[region]
+    up, tilted = normals[:, 2], np.sin(np.radians(20))
+    regions = {"all": np.ones(len(up), bool), "north": up > tilted, "south": up < -tilted, "band": np.abs(up) <= tilted, "none": np.zeros(len(up), bool)}
+    if region not in regions:
+        raise SystemExit(f"unknown region {region!r} of variant heightsR: {', '.join(regions)}")
+    chosen = regions[region]
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(shape["vertices_m"].astype(np.float32)), o3d.core.Tensor(shape["faces"].astype(np.uint32)))
     steps = []

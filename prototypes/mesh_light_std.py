@@ -52,9 +52,10 @@ def main() -> None:
         error = np.degrees(np.arccos(np.clip(fit.light_dir_cam @ truth.light_dir_cam, -1.0, 1.0)))
         with_prior = standard_deviations(problem, last["normal"], scale)
         # The same with the k offsets' prior taken off (each cell's k free): what the samples alone say.
-        free = last["normal"].copy()
-        dk = np.arange(problem.o_dk, problem.o_dk + problem.ncell)
-        free[dk, dk] = free[dk, dk] - (scale[dk] / problem.settings.sigma_dk) ** 2
+        free, dk = last["normal"].copy(), slice(problem.o_dk, problem.o_dk + problem.ncell)
+        diagonal = free.diagonal()
+        diagonal[dk] -= (scale[dk] / problem.settings.sigma_dk) ** 2
+        free.setdiag(diagonal)
         without_prior = standard_deviations(problem, free, scale)
         print(f"{imaging} {spec}: light {error:.3f} deg off; the fit's standard deviation of the light's two angles "
               f"{np.degrees(with_prior[0]):.4f} and {np.degrees(with_prior[1]):.4f} deg, of k {with_prior[2]:.5f}; "
