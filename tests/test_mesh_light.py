@@ -7,7 +7,8 @@ import pytest
 
 from asteroid_photometry.core import files
 from asteroid_photometry.core.failures import DataFailure
-from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, final_cloud_path, mesh_light_of, mesh_light_skipped
+from asteroid_photometry.experiments import table2
+from asteroid_photometry.experiments.table2 import MESH_LIGHT_MIN_K, final_cloud_path, mesh_light_of, mesh_light_psf, mesh_light_skipped
 from asteroid_photometry.from_images import mesh_light
 from asteroid_photometry.from_images.refine import PureSampleCloud
 from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
@@ -177,6 +178,39 @@ def _pure(k: float) -> PureSampleCloud:
     return cloud
 
 
+def test_the_mission_psf_is_its_stated_core_to_three_sigma():
+    np.testing.assert_allclose(mesh_light_psf({"psf_fwhm_px": 1.5}), psf_kernel(1.5, radius_px=2))
+    assert mesh_light_psf({"psf_fwhm_px": 3.0}).shape == (9, 9)  # 3 sigma = 3.8 px
+    assert mesh_light_psf({"psf_fwhm_px": 0.0}) is None
+    assert mesh_light_psf({"psf_fwhm_px": None}) is None and mesh_light_psf({}) is None
+
+
+def test_the_stage_fits_under_the_missions_psf_and_gains(monkeypatch):
+    seen = {}
+    monkeypatch.setattr(table2.cloud_lib, "poisson_surface", lambda oriented, depth: (np.zeros((3, 3)), np.array([[0, 1, 2]])))
+    monkeypatch.setattr(table2.mesh_light, "fit_mesh_light", lambda *args, **kwargs: seen.update(args=args, kwargs=kwargs))
+
+    class Recon:
+        def camera_centres(self):
+            return {0: np.zeros(3)}
+
+        def body_to_camera(self):
+            return {0: np.eye(4)}
+
+        def intrinsics(self):
+            return Intrinsics(8, 8, 10.0, 4.0, 4.0)
+
+    pure = _pure(0.9)
+    object.__setattr__(pure, "image_gains", np.array([2.0]))
+    object.__setattr__(pure, "refined_light_dir_cam", np.array([0.0, 0.0, -1.0]))
+    table2.fit_mesh_light_on(pure, None, Recon(), {"psf_fwhm_px": 1.5, "gain_sigma": 0.02}, [np.full((8, 8), 4.0)])
+    np.testing.assert_allclose(seen["kwargs"]["psf"], psf_kernel(1.5, radius_px=2))
+    np.testing.assert_allclose(seen["args"][5][0], 2.0)  # the image over the refinement's gain
+    assert seen["args"][-1] == 0.02
+    table2.fit_mesh_light_on(pure, None, Recon(), {"psf_fwhm_px": 0.0, "gain_sigma": 0.0}, [np.full((8, 8), 4.0)])
+    assert seen["kwargs"]["psf"] is None
+
+
 def test_gate_skips_a_k_near_one_half():
     assert "below" in mesh_light_skipped(_pure(MESH_LIGHT_MIN_K - 0.01))
     assert mesh_light_skipped(_pure(MESH_LIGHT_MIN_K + 0.01)) is None
@@ -209,15 +243,16 @@ def _geodesic_sphere(subdivisions: int):
     return vertices, np.asarray(mesh.triangles).copy()
 
 
-def test_elimination_order_dissects_the_surface():
+@pytest.mark.parametrize("cell_px, of_colamd", [(14.0, 0.9), (mesh_light.MeshLightSettings().cell_px, 1.0)])
+def test_elimination_order_dissects_the_surface(cell_px, of_colamd):
     """The step's elimination order: every unknown once, the shared ones (k, light, gains) last, each cell's albedo and
     k offset side by side; and an LU of the step's matrix in this order fills in less than in COLAMD's (what the fit
-    used before; 0.76 of it on this sphere of 10,242 vertices, about 0.55 on a paper set's surface) and far less than
-    in the mesh's own numbering (0.18)."""
+    used before; on this sphere of 10,242 vertices 0.76 of it with cells of 14 footprints, 0.97 with the default 7,
+    whose cells' albedos and k offsets are two in five of the unknowns) and far less than in the mesh's own numbering (0.18)."""
     from scipy.sparse.linalg import splu
 
     vertices, triangles = _geodesic_sphere(5)
-    settings = mesh_light.MeshLightSettings()
+    settings = mesh_light.MeshLightSettings(cell_px=cell_px)
     problem = mesh_light._MeshProblem(vertices, triangles, vertices.copy(), 0.01, 6, 0.02, settings)
     order = problem.order
     np.testing.assert_array_equal(np.sort(order), np.arange(problem.n_par))
@@ -246,7 +281,7 @@ def test_elimination_order_dissects_the_surface():
         return lu.L.nnz + lu.U.nnz
 
     dissected = fill(normal[order][:, order].tocsc(), "NATURAL")
-    assert dissected < 0.9 * fill(normal, "COLAMD")
+    assert dissected < of_colamd * fill(normal, "COLAMD")
     assert dissected < 0.25 * fill(normal, "NATURAL")
 
 

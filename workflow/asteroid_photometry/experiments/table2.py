@@ -43,6 +43,7 @@ from asteroid_photometry.evaluation import quality
 from asteroid_photometry.from_images import cloud as cloud_lib, mesh_light, reconstruct, refine, register
 from asteroid_photometry.from_images.purity import PurityTest
 from asteroid_photometry.world.cameras import Intrinsics
+from asteroid_photometry.world.degrade import FWHM_PER_SIGMA, psf_kernel
 from asteroid_photometry.world.images import mission_navigation, read_mission, read_mission_file
 from asteroid_photometry.world import observe
 from asteroid_photometry.world.noise import sensor_from_config
@@ -366,10 +367,25 @@ def mesh_light_skipped(pure: refine.PureSampleCloud) -> str | None:
     return None
 
 
+#: The mission's stated PSF enters the mesh fit's model as its Gaussian core cut this many standard deviations out
+#: (2 pixels for a FWHM of 1.5): beyond that the core holds under 0.3 % of the light.
+MESH_LIGHT_PSF_SIGMAS = 3.0
+
+
+def mesh_light_psf(mission: dict) -> np.ndarray | None:
+    """The kernel the mesh fit blurs its model by: the camera's stated PSF core (the mission's ``psf_fwhm_px``, a
+    calibration a mission has) out to :data:`MESH_LIGHT_PSF_SIGMAS`; ``None`` where the mission states no blur."""
+    fwhm = float(mission.get("psf_fwhm_px") or 0.0)
+    if fwhm <= 0.0:
+        return None
+    return psf_kernel(fwhm, radius_px=max(1, int(np.ceil(MESH_LIGHT_PSF_SIGMAS * fwhm / FWHM_PER_SIGMA))))
+
+
 def fit_mesh_light_on(pure: refine.PureSampleCloud, oriented: cloud_lib.OrientedCloud, recon, mission: dict, images) -> mesh_light.MeshLight:
     """The mesh fit as rule ``mesh_light`` runs it: on the cloud's Poisson surface (:data:`MESH_LIGHT_POISSON_DEPTH`),
-    the images over the refinement's gains, from the refinement's light and k, under the mission's sensor model and
-    stated calibration scatter. ``ValueError`` where the surface shows too few pixels."""
+    the images over the refinement's gains, from the refinement's light and k, under the mission's sensor model,
+    stated calibration scatter and stated PSF (``mesh_light_psf``). ``ValueError`` where the surface shows too few
+    pixels."""
     gains = pure.image_gains if pure.image_gains is not None else np.ones(len(images))
     vertices, triangles = cloud_lib.poisson_surface(oriented, depth=MESH_LIGHT_POISSON_DEPTH)
     return mesh_light.fit_mesh_light(
@@ -377,7 +393,7 @@ def fit_mesh_light_on(pure: refine.PureSampleCloud, oriented: cloud_lib.Oriented
         # Noise-free images: no sensor variance, the residuals over the fit's relative floor alone.
         PurityTest(sensor_from_config(mission["sensor"])).sample_variance if mission.get("sensor") else None,
         pure.refined_light_dir_cam, pure.refined_minnaert_k,
-        float(mission.get("gain_sigma") or 0.0),
+        float(mission.get("gain_sigma") or 0.0), psf=mesh_light_psf(mission),
     )
 
 

@@ -68,8 +68,11 @@ class MeshLightSettings:
     edge_px: float = 2.5
     sigma_h_px: float = 1.4
     sigma_edge_px: float = 0.35
-    cell_px: float = 14.0
-    sigma_dk: float = 0.025
+    # Cells of 7 footprints, the k offsets held by 0.1, with the mission's PSF in the model (``psf``): the three
+    # together, not one alone, remove the map's lean on the true geometry; chosen on config/tuning_mid.yaml's and
+    # config/map_draws.yaml's rows (docs/table2.md, section 16).
+    cell_px: float = 7.0
+    sigma_dk: float = 0.1
     floor: float = 0.02
     min_cos_emission: float = 0.2
     min_cos_incidence: float = 0.1
