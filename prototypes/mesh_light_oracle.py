@@ -6,7 +6,8 @@ the refinement's light and k, as rule ``mesh_light`` does, in these variants:
 
 - ``base``: the cloud's Poisson surface (octree depth 7) and the reconstructed cameras (what the workflow did before
   46d0b84);
-- ``workflow``: as ``base`` on the surface of depth 8 (what rule ``mesh_light`` does);
+- ``workflow``: as ``base`` on the surface of depth 8 (what rule ``mesh_light`` does, since f2daff2 as
+  ``workflow_psf``);
 - ``truecam``: that surface moved into the body frame by the registration, seen through the true cameras;
 - ``trueshape``: the shape model's own facets through the true cameras;
 - ``trueshapegain``: as ``trueshape``, the images divided by the true calibration gains, the gains then held;
@@ -15,9 +16,10 @@ the refinement's light and k, as rule ``mesh_light`` does, in these variants:
   its normal onto the shape model (the height the mesh fit would need there): ``all``, ``north`` or ``south`` (normal
   more than 20 degrees out of the equator's plane, towards either pole), ``band`` (within 20 degrees of it) or
   ``none``;
-- any of them with ``_psf``: the model blurred by the mission's stated PSF (``fit_mesh_light``'s ``psf``).
+- any of them with ``_psf``: the model blurred by the mission's stated PSF (``table2.mesh_light_psf``, as rule
+  ``mesh_light`` blurs it).
 
-The fit runs at its default settings, or at those of the environment variable ``MESH_LIGHT_SETTINGS``
+The fit runs at its default settings (since f2daff2 cells of 7 footprints, ``sigma_dk`` 0.1), or at those of the environment variable ``MESH_LIGHT_SETTINGS``
 (``MeshLightSettings`` fields, e.g. ``sigma_dk=0.1,cell_px=7``), in every variant.
 
 It reads the truth (the mission set's truth file, the shape model) for the oracles and to print each light's error:
@@ -43,7 +45,6 @@ from asteroid_photometry.experiments import table2  # noqa: E402
 from asteroid_photometry.from_images import cloud as cloud_lib, mesh_light, register  # noqa: E402
 from asteroid_photometry.from_images.purity import PurityTest  # noqa: E402
 from asteroid_photometry.world.cameras import Intrinsics  # noqa: E402
-from asteroid_photometry.world.degrade import psf_kernel  # noqa: E402
 from asteroid_photometry.world.noise import sensor_from_config  # noqa: E402
 
 
@@ -102,7 +103,7 @@ def row(run: Path, condition: str, set_id: str, priors: str, variants: list[str]
     variance = PurityTest(sensor_from_config(stage.mission["sensor"])).sample_variance
     cells = [f"start {angle_deg(pure.refined_light_dir_cam, true_light):.3f}"]
     for variant in variants:
-        name, psf = variant.removesuffix("_psf"), psf_kernel(stage.mission["psf_fwhm_px"], radius_px=2) if variant.endswith("_psf") else None
+        name, psf = variant.removesuffix("_psf"), table2.mesh_light_psf(stage.mission) if variant.endswith("_psf") else None
         images, gain_sigma = [image / gain for image, gain in zip(stage.images, gains)], float(stage.mission.get("gain_sigma") or 0.0)
         if name == "base":
             geometry = (vertices, triangles, centres, poses, stage.recon.intrinsics())
