@@ -19,8 +19,9 @@ the refinement's light and k, as rule ``mesh_light`` does, in these variants:
 - any of them with ``_psf``: the model blurred by the mission's stated PSF (``table2.mesh_light_psf``, as rule
   ``mesh_light`` blurs it).
 
-The fit runs at its default settings (since f2daff2 cells of 7 footprints, ``sigma_dk`` 0.1), or at those of the environment variable ``MESH_LIGHT_SETTINGS``
-(``MeshLightSettings`` fields, e.g. ``sigma_dk=0.1,cell_px=7``), in every variant.
+The fit runs at its default settings (since f2daff2 cells of 7 footprints, ``sigma_dk`` 0.1), or at those of the
+environment variable ``MESH_LIGHT_SETTINGS`` (``MeshLightSettings`` fields, e.g. ``sigma_dk=0.025,cell_px=14``, the
+defaults before f2daff2), in every variant.
 
 It reads the truth (the mission set's truth file, the shape model) for the oracles and to print each light's error:
 never use it inside the workflow.
