@@ -334,6 +334,31 @@ def test_the_residual_test_allows_the_images_calibration_scatter(faceted_ball):
     assert estimation.angle_between_deg(with_gains_light.refined_light_dir_cam, LIGHT_CAM) < 0.5
 
 
+def test_a_candidate_no_camera_samples_scores_inf_under_the_noise_limited_test(faceted_ball):
+    """The noise-limited score divides each candidate's residual by the largest its noise explains; a candidate
+    with no samples has neither, and must score inf without a RuntimeWarning from the division in a job's log."""
+    import warnings
+
+    from asteroid_photometry.from_images.purity import PurityTest
+    from asteroid_photometry.world.noise import sensor_from_config
+
+    vertices, triangles, normals, poses, images, surface = faceted_ball
+    sensor = sensor_from_config({"name": "amica12", "full_well_e": 30000, "read_noise_e": 20, "bit_depth": 12, "radiance_at_full_well": 1.0})
+    seen = vertices[triangles[:60]].mean(axis=1)
+    points = np.vstack([seen, [0.0, 0.0, 50 * RADIUS]])  # the last far above the cameras' ring: in no image
+    point_normals = np.vstack([normals[:60], [0.0, 0.0, 1.0]])
+    n_images = len(images)
+    pair_point, pair_image = np.repeat(np.arange(len(points)), n_images), np.tile(np.arange(n_images), len(points))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        score, _ = refine._fit_candidates(
+            points, point_normals, pair_point, pair_image, poses, INTRINSICS, images, LIGHT_CAM, 0.5, 1.0, PurityTest(sensor), 5, 30.0,
+            _spin_axis(poses), 0.002,
+        )
+    assert np.isinf(score[-1])
+    assert np.isfinite(score[:-1]).sum() >= 20
+
+
 def test_the_second_pass_keeps_the_first_passs_axis_when_its_restart_leaves_the_plane(tmp_path, monkeypatch):
     """Under a sensor with gains the refinement runs twice; the cloud's estimate taken again on the gain-corrected
     images can put the light out of the ring's plane. The second pass must still turn the normals about the spin

@@ -402,8 +402,9 @@ def _fit_candidates(points, normals, pair_point, pair_image, poses, intrinsics, 
         n_iterations=30, min_observations=min_observations, normal_prior_deg=normal_prior_deg, fit_albedo_k=True, noise_var=noise_var, axis=axis,
     )
     residual = relative_residuals(p, rotations, view_cam, brightness[keep], fitted_normals, fitted_albedo, fitted_k, light_dir_cam)
-    if statistical:
-        residual = residual / noise_limited_residual(p, brightness[keep], len(points), purity_tolerance, float(np.hypot(max_residual, gain_sigma)))
+    if statistical:  # only the fitted points have a limit to score against; the others score inf
+        limit = noise_limited_residual(p, brightness[keep], len(points), purity_tolerance, float(np.hypot(max_residual, gain_sigma)))
+        residual = np.divide(residual, limit, out=np.full_like(residual, np.inf), where=active)
     residual[~active] = np.inf
     return residual, fitted_normals
 
