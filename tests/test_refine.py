@@ -301,14 +301,20 @@ def test_turn_axis_holds_latitudes_only_in_the_camera_rings_plane(view_latitude_
         assert abs(abs(axis @ turn[:, 2]) - 1.0) < 1e-9  # the body's z, seen in the reconstruction's frame
 
 
+def _amica12_sensor():
+    from asteroid_photometry.world.noise import sensor_from_config
+
+    return sensor_from_config({"name": "amica12", "full_well_e": 30000, "read_noise_e": 20, "bit_depth": 12, "radiance_at_full_well": 1.0})
+
+
 def test_the_residual_test_allows_the_images_calibration_scatter(faceted_ball):
     """Under a sensor and a 2 % gain per image, a residual test that knows the gains' scatter keeps more points, and
     the light step's gains from them come out closer to the truth than from the points a noise-only test keeps."""
     from asteroid_photometry.from_images.purity import PurityTest
-    from asteroid_photometry.world.noise import apply_sensor_noise, sensor_from_config
+    from asteroid_photometry.world.noise import apply_sensor_noise
 
     vertices, triangles, normals, poses, images, surface = faceted_ball
-    sensor = sensor_from_config({"name": "amica12", "full_well_e": 30000, "read_noise_e": 20, "bit_depth": 12, "radiance_at_full_well": 1.0})
+    sensor = _amica12_sensor()
     rng = np.random.default_rng(1)
     gains = np.exp(0.02 * rng.standard_normal(len(images)))
     recorded = [apply_sensor_noise(image * gain, sensor, rng) for image, gain in zip(images, gains)]
@@ -340,10 +346,9 @@ def test_a_candidate_no_camera_samples_scores_inf_under_the_noise_limited_test(f
     import warnings
 
     from asteroid_photometry.from_images.purity import PurityTest
-    from asteroid_photometry.world.noise import sensor_from_config
 
     vertices, triangles, normals, poses, images, surface = faceted_ball
-    sensor = sensor_from_config({"name": "amica12", "full_well_e": 30000, "read_noise_e": 20, "bit_depth": 12, "radiance_at_full_well": 1.0})
+    sensor = _amica12_sensor()
     seen = vertices[triangles[:60]].mean(axis=1)
     points = np.vstack([seen, [0.0, 0.0, 50 * RADIUS]])  # the last far above the cameras' ring: in no image
     point_normals = np.vstack([normals[:60], [0.0, 0.0, 1.0]])
