@@ -191,25 +191,31 @@ def _blur_matrix(psf: np.ndarray, sample_pixel, support_pixel, shape) -> sp.csr_
     """The PSF as a (samples x support) matrix: row i holds the weight of each support pixel in sample i's value.
 
     Pixels are flat indices into the stack of images of ``shape`` (images, height, width); a neighbour outside its
-    image or not in the support (sky, shadow, the unlit side) adds nothing."""
+    image or not in the support (sky, shadow, the unlit side) adds nothing: its entry is stored as a zero weight on
+    the first support pixel, so that every row holds the whole kernel, in its row-major order (the support being in
+    pixel order, that of the pixels), and the matrix is built without a search."""
     n_images, height, width = shape
-    lookup = np.full(n_images * height * width, -1, dtype=np.int64)
-    lookup[support_pixel] = np.arange(len(support_pixel))
+    radius = psf.shape[0] // 2
+    # The support's positions on images padded by the kernel's radius (-1: not in the support), so that no neighbour
+    # of a sample falls outside its image's array.
+    padded_height, padded_width = height + 2 * radius, width + 2 * radius
+    lookup = np.full(n_images * padded_height * padded_width, -1, dtype=np.int32)
+    image, rest = np.divmod(support_pixel, height * width)
+    v, u = np.divmod(rest, width)
+    lookup[(image * padded_height + v + radius) * padded_width + u + radius] = np.arange(len(support_pixel))
     image, rest = np.divmod(sample_pixel, height * width)
     v, u = np.divmod(rest, width)
-    radius = psf.shape[0] // 2
-    rows, cols, vals = [], [], []
-    for dv in range(-radius, radius + 1):
-        for du in range(-radius, radius + 1):
-            vv, uu = v + dv, u + du
-            inside = (vv >= 0) & (vv < height) & (uu >= 0) & (uu < width)
-            target = np.where(inside, lookup[image * height * width + np.clip(vv, 0, height - 1) * width + np.clip(uu, 0, width - 1)], -1)
-            hit = np.flatnonzero(target >= 0)
-            rows.append(hit)
-            cols.append(target[hit])
-            vals.append(np.full(len(hit), psf[dv + radius, du + radius]))
-    rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
-    return sp.csr_matrix((vals, (rows, cols)), shape=(len(sample_pixel), len(support_pixel)))
+    centre = (image * padded_height + v + radius) * padded_width + u + radius
+    dv, du = np.divmod(np.arange(psf.size), psf.shape[1])
+    target = np.empty((len(sample_pixel), psf.size), dtype=np.int32)
+    for j, shift in enumerate((dv - radius) * padded_width + (du - radius)):
+        target[:, j] = lookup[centre + shift]
+    values = np.tile(psf.ravel(), len(sample_pixel))
+    missing = np.flatnonzero(target.ravel() < 0)
+    values[missing] = 0.0
+    target.ravel()[missing] = 0
+    indptr = np.arange(0, target.size + 1, psf.size)
+    return sp.csr_matrix((values, target.ravel(), indptr), shape=(len(sample_pixel), len(support_pixel)))
 
 
 def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intrinsics, images, variance, psf=None) -> _Samples:
