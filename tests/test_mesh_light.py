@@ -321,3 +321,33 @@ def test_the_blurred_model_fits_blurred_images_better():
         r, _, _ = mesh_light._residuals(problem, samples, state, rotations, jacobian=False)
         misfit[name] = np.sqrt(np.mean(r**2)) * settings.floor
     assert misfit["blurred"] < 0.6 * misfit["sharp"], misfit
+
+
+def test_the_cast_window_holds_every_pixel_that_sees_the_surface():
+    """Every pixel whose ray meets the surface lies in the window ``_cast`` casts (with its pad around), the window is
+    no wider than that, and a surface behind the camera or beside the image gets the whole image or none of it."""
+    vertices, triangles, _ = _sphere(20)
+    lobes = 1.0 + 0.25 * np.cos(3 * np.arctan2(vertices[:, 1], vertices[:, 0]))  # three lobes: not convex
+    vertices = vertices * lobes[:, None] * np.array([1.6, 0.8, 0.6]) + np.array([0.3, -0.2, 0.1])  # elongated, off the optical axis
+    intrinsics = Intrinsics(width=96, height=80, focal_px=100.0, cx=48.0, cy=40.0)
+    poses, centres = _ring(5, 6.0)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(triangles.astype(np.uint32)))
+    vv, uu = np.mgrid[0 : intrinsics.height, 0 : intrinsics.width]
+    rays = pixel_rays_cam(intrinsics, uu.ravel() + 0.5, vv.ravel() + 0.5)
+    corners = mesh_light._hull_corners(vertices)
+    assert len(corners) < len(vertices)
+    for i in sorted(poses):
+        R, C = poses[i][:3, :3], centres[i]
+        d = rays @ R
+        seen = np.isfinite(scene.cast_rays(o3d.core.Tensor(np.hstack([np.broadcast_to(C, d.shape), d]).astype(np.float32)))["t_hit"].numpy())
+        rows, columns = np.divmod(np.flatnonzero(seen), intrinsics.width)
+        assert len(rows) > 100
+        (v0, v1), (u0, u1) = mesh_light._window(corners, R, C, intrinsics, intrinsics.height, intrinsics.width, pad=2)
+        assert v0 <= rows.min() - 2 and rows.max() + 2 < v1 and u0 <= columns.min() - 2 and columns.max() + 2 < u1
+        assert v1 - v0 <= rows.max() - rows.min() + 8 and u1 - u0 <= columns.max() - columns.min() + 8
+    R, C = poses[0][:3, :3], centres[0]
+    assert mesh_light._window(corners, R, -C, intrinsics, intrinsics.height, intrinsics.width, pad=2) == ((0, 80), (0, 96))  # behind
+    beside = corners + 50.0 * (R.T @ np.array([1.0, 0.0, 0.0]))
+    (v0, v1), (u0, u1) = mesh_light._window(beside, R, C, intrinsics, intrinsics.height, intrinsics.width, pad=2)
+    assert u1 == u0

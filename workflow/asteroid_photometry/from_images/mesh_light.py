@@ -44,9 +44,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.ndimage import binary_erosion
+from scipy.spatial import ConvexHull, QhullError
 from scipy.sparse.linalg import splu
 
-from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam
+from asteroid_photometry.world.cameras import Intrinsics, pixel_rays_cam, project
 
 log = logging.getLogger(__name__)
 
@@ -207,15 +208,40 @@ def _blur_matrix(psf: np.ndarray, sample_pixel, support_pixel, shape) -> sp.csr_
     v, u = np.divmod(rest, width)
     centre = (image * padded_height + v + radius) * padded_width + u + radius
     dv, du = np.divmod(np.arange(psf.size), psf.shape[1])
-    target = np.empty((len(sample_pixel), psf.size), dtype=np.int32)
+    # Gathered one kernel entry at a time into contiguous rows, then laid out sample by sample.
+    by_entry = np.empty((psf.size, len(sample_pixel)), dtype=np.int32)
     for j, shift in enumerate((dv - radius) * padded_width + (du - radius)):
-        target[:, j] = lookup[centre + shift]
-    values = np.tile(psf.ravel(), len(sample_pixel))
-    missing = np.flatnonzero(target.ravel() < 0)
+        np.take(lookup, centre + shift, out=by_entry[j])
+    target = by_entry.T.ravel()
+    values = np.empty((len(sample_pixel), psf.size))
+    values[:] = psf.ravel()
+    values = values.ravel()
+    missing = np.flatnonzero(target < 0)
     values[missing] = 0.0
-    target.ravel()[missing] = 0
+    target[missing] = 0
     indptr = np.arange(0, target.size + 1, psf.size)
-    return sp.csr_matrix((values, target.ravel(), indptr), shape=(len(sample_pixel), len(support_pixel)))
+    return sp.csr_matrix((values, target, indptr), shape=(len(sample_pixel), len(support_pixel)))
+
+
+def _hull_corners(points) -> np.ndarray:
+    """The corners of the convex hull of ``points`` (all of them where the hull is flat)."""
+    try:
+        return points[ConvexHull(points).vertices]
+    except QhullError:
+        return points
+
+
+def _window(points, R, C, intrinsics: Intrinsics, height: int, width: int, pad: int):
+    """The rows and columns, ``(v0, v1), (u0, u1)`` (ends excluded), of an image that hold the projection of
+    ``points`` (body frame; the camera at ``C``, body to camera ``R``) with ``pad`` pixels around it, within the image
+    (empty where it falls outside); the whole image where a point is not in front of the camera."""
+    in_camera = (points - C) @ R.T
+    if not np.all(in_camera[:, 2] > 0):
+        return (0, height), (0, width)
+    uv = project(in_camera, intrinsics)
+    low, high = np.floor(uv.min(axis=0)).astype(int) - pad, np.ceil(uv.max(axis=0)).astype(int) + pad
+    v0, u0 = max(low[1], 0), max(low[0], 0)
+    return (v0, max(v0, min(high[1], height))), (u0, max(u0, min(high[0], width)))
 
 
 def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intrinsics, images, variance, psf=None) -> _Samples:
@@ -229,13 +255,20 @@ def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intri
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(P.astype(np.float32)), o3d.core.Tensor(problem.F.astype(np.uint32)))
     height, width = images[0].shape
-    vv, uu = np.mgrid[0:height, 0:width]
-    vv, uu = vv.ravel(), uu.ravel()
-    dirs_cam = pixel_rays_cam(intrinsics, uu + 0.5, vv + 0.5)
+    dirs_cam = pixel_rays_cam(intrinsics, *(axis.ravel() + 0.5 for axis in np.mgrid[0:height, 0:width][::-1]))
     kernel = np.ones((3, 3), bool)
+    # A perspective view takes a convex set to a convex one: the surface's hull's corners bound its projection.
+    corners = _hull_corners(P)
     parts, support = [], []
     for position, (R, C, image) in enumerate(zip(rotations, centres, images)):
-        d = dirs_cam @ R
+        # Only the pixels of the surface's projected bounding box can see it: the rest of the image is not cast, and
+        # the erosion's border (nothing seen) stands for it. The box has room for the erosion and float32's round-off.
+        (v0, v1), (u0, u1) = _window(corners, R, C, intrinsics, height, width, pad=settings.margin + 2)
+        if v1 == v0 or u1 == u0:
+            continue
+        vv, uu = (axis.ravel() for axis in np.mgrid[v0:v1, u0:u1])
+        pixels = vv * width + uu
+        d = (dirs_cam @ R)[pixels]
         hit = scene.cast_rays(o3d.core.Tensor(np.hstack([np.broadcast_to(C, d.shape), d]).astype(np.float32)))
         t = hit["t_hit"].numpy()
         on = np.isfinite(t)
@@ -248,13 +281,14 @@ def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intri
         X = C + t[lit_idx, None] * d[lit_idx]
         shadow_rays = np.hstack([X + SHADOW_OFFSET_PX * problem.footprint * n[face[lit_idx]], np.broadcast_to(light_body, (len(lit_idx), 3))])
         lit[lit_idx[np.isfinite(scene.cast_rays(o3d.core.Tensor(shadow_rays.astype(np.float32)))["t_hit"].numpy())]] = False
-        inside = binary_erosion(on.reshape(height, width), kernel, iterations=settings.margin) & binary_erosion(lit.reshape(height, width), kernel, iterations=settings.margin)
+        box = (v1 - v0, u1 - u0)
+        inside = binary_erosion(on.reshape(box), kernel, iterations=settings.margin) & binary_erosion(lit.reshape(box), kernel, iterations=settings.margin)
         value = image[vv, uu]
         keep = inside.ravel() & (cos_i >= settings.min_cos_incidence) & (cos_e >= settings.min_cos_emission) & (value > 0)
-        parts.append((face[keep], np.full(int(keep.sum()), position), -d[keep], value[keep], position * height * width + np.flatnonzero(keep)))
+        parts.append((face[keep], np.full(int(keep.sum()), position), -d[keep], value[keep], position * height * width + pixels[keep]))
         if psf is not None:
             seen = np.flatnonzero(lit)
-            support.append((face[seen], np.full(len(seen), position), -d[seen], position * height * width + seen))
+            support.append((face[seen], np.full(len(seen), position), -d[seen], position * height * width + pixels[seen]))
     face, image_pos, view, value, pixel = (np.concatenate(p) for p in zip(*parts))
     sigma = np.sqrt(variance(value) / value**2 + settings.floor**2)
     samples = _Samples(face, image_pos, view, np.log(value), sigma)
