@@ -341,15 +341,30 @@ def _shading(problem: _MeshProblem, state: _State, n, pixels: _Pixels | _Samples
     return model, ok, (nf, light_body, cos_i, cos_e, k, log_ie)
 
 
-def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotations, jacobian: bool):
-    """Weighted residuals of the samples and of the priors; with ``jacobian`` the samples' Jacobian (CSR, 9 per row).
+@dataclass
+class _Evaluation:
+    """The fit's residuals at one state (weighted, of the samples and of the priors) and what its Jacobian needs."""
 
-    Under a PSF (``samples.blur``) a sample's model is the blurred brightness of the pixels around it, and its
-    Jacobian that of its own pixel's: the ratio of the blurred to the sharp value held within a step (the normal
-    matrix keeps its size and sparsity). The exact gradient through the blur, with this matrix, stalled (docs/amica_record.md).
-    """
+    residuals: np.ndarray
+    prior: np.ndarray
+    weight: np.ndarray
+    ok: np.ndarray
+    corners: tuple  # the faces' corners a, b, c
+    normals: np.ndarray  # unit face normals
+    norm: np.ndarray  # their unnormalised lengths
+    shading: tuple  # ``_shading``'s parts for the samples
+
+    @property
+    def cost(self) -> float:
+        return 0.5 * (self.residuals @ self.residuals + self.prior @ self.prior)
+
+
+def _evaluate(problem: _MeshProblem, samples: _Samples, state: _State, rotations) -> _Evaluation:
+    """The weighted residuals of the samples and of the priors at ``state``.
+
+    Under a PSF (``samples.blur``) a sample's model is the blurred brightness of the pixels around it."""
     settings = problem.settings
-    P, a, b, c, cross, norm = problem.surface(state.h)
+    _, a, b, c, cross, norm = problem.surface(state.h)
     n = cross / norm[:, None]
     model, ok, parts = _shading(problem, state, n, samples, rotations)
     if samples.blur is not None:
@@ -358,19 +373,28 @@ def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotation
     weight = 1.0 / np.sqrt(1.0 + (r / settings.robust) ** 2) if settings.robust > 0 else np.ones_like(r)
     x_prior = np.concatenate([state.h, np.zeros(2 * problem.ncell + 3), state.log_gains])
     x_prior[problem.o_dk : problem.o_l] = state.dk
-    prior_r = problem.prior @ x_prior
-    if not jacobian:
-        return r * weight, prior_r, None
-    s = np.where(ok, -weight / samples.sigma, 0.0)
+    return _Evaluation(r * weight, problem.prior @ x_prior, weight, ok, (a, b, c), n, norm, parts)
+
+
+def _jacobian(problem: _MeshProblem, samples: _Samples, state: _State, evaluation: _Evaluation, rotations) -> sp.csr_matrix:
+    """The samples' Jacobian (CSR, 9 per row) at ``state``, from its evaluation there (``_evaluate``).
+
+    Under a PSF a sample's Jacobian is that of its own pixel's: the ratio of the blurred to the sharp value held
+    within a step (the normal matrix keeps its size and sparsity). The exact gradient through the blur, with this
+    matrix, stalled (docs/amica_record.md)."""
+    s = np.where(evaluation.ok, -evaluation.weight / samples.sigma, 0.0)
     # d log-brightness / d normal, projected on the face's tangent plane and over |cross|: per face, the derivative of
     # the unit normal by each corner's height (the corner's normal D crossed with the opposite edge).
     D = problem.D
     Fv = problem.F
+    a, b, c = evaluation.corners
+    n, norm = evaluation.normals, evaluation.norm
     tangent = lambda v: (v - np.einsum("ij,ij->i", v, n)[:, None] * n) / norm[:, None]  # noqa: E731
     dn = np.stack([tangent(np.cross(D[Fv[:, 0]], b - c)), tangent(np.cross(D[Fv[:, 1]], c - a)), tangent(np.cross(b - a, D[Fv[:, 2]]))], axis=1)  # (nf, 3, 3)
-    nf, light_body, cos_i, cos_e, k, log_ie = parts
+    nf, light_body, cos_i, cos_e, k, log_ie = evaluation.shading
     g = (k / cos_i)[:, None] * light_body + ((k - 1) / cos_e)[:, None] * samples.view
-    data = np.empty((len(r), 9))
+    m = len(s)
+    data = np.empty((m, 9))
     data[:, :3] = np.einsum("mj,mvj->mv", g, dn[samples.face]) * s[:, None]
     data[:, 3] = s
     data[:, 4] = s * log_ie
@@ -380,9 +404,14 @@ def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotation
         e_body = np.einsum("nji,j->ni", rotations, e)[samples.image]
         data[:, 6 + j] = s * k * np.einsum("ij,ij->i", nf, e_body) / cos_i
     data[:, 8] = s
-    m = len(r)
-    J = sp.csr_matrix((data.ravel(), samples.columns.ravel(), np.arange(0, 9 * m + 1, 9)), shape=(m, problem.n_par))
-    return r * weight, prior_r, J
+    return sp.csr_matrix((data.ravel(), samples.columns.ravel(), np.arange(0, 9 * m + 1, 9)), shape=(m, problem.n_par))
+
+
+def _residuals(problem: _MeshProblem, samples: _Samples, state: _State, rotations, jacobian: bool):
+    """Weighted residuals of the samples and of the priors; with ``jacobian`` the samples' Jacobian (``_jacobian``),
+    else ``None``."""
+    evaluation = _evaluate(problem, samples, state, rotations)
+    return evaluation.residuals, evaluation.prior, _jacobian(problem, samples, state, evaluation, rotations) if jacobian else None
 
 
 def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: dict, intrinsics: Intrinsics, images, variance, start_light_cam, start_k: float,
@@ -424,24 +453,28 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
             raise ValueError(f"the mesh shows only {n_samples} usable pixels for {problem.n_par} unknowns")
         if outer == 0:
             # The albedo starts at each cell's mean log residual.
-            r, _, _ = _residuals(problem, samples, state, rotations, jacobian=False)
+            r = _evaluate(problem, samples, state, rotations).residuals
             cells = problem.cell[samples.face]
             counts = np.bincount(cells, minlength=problem.ncell)
             state.log_albedo = np.where(counts > 0, np.bincount(cells, weights=r * samples.sigma, minlength=problem.ncell) / np.maximum(counts, 1), 0.0)
+        # The state's evaluation, kept from the step that accepted it.
+        current = _evaluate(problem, samples, state, rotations)
         for _ in range(settings.inner):
-            r, prior_r, J = _residuals(problem, samples, state, rotations, jacobian=True)
-            cost = 0.5 * (r @ r + prior_r @ prior_r)
+            r, prior_r = current.residuals, current.prior
+            J = _jacobian(problem, samples, state, current, rotations)
+            cost = current.cost
             colnorm = np.sqrt(np.bincount(samples.columns.ravel(), weights=J.data**2, minlength=problem.n_par) + problem.prior_colsq)
             colnorm[colnorm == 0] = 1.0
             gradient = -(J.T @ r + problem.prior.T @ prior_r) / colnorm
             normal = _scaled_normal(J, problem.prior_normal, 1 / colnorm)
+            del J
             for _attempt in range(MAX_ATTEMPTS):
                 y = _solve(normal, gradient, damping, problem.order)
                 trial = state.stepped(problem, y / colnorm)
-                rn, prn, _ = _residuals(problem, samples, trial, rotations, jacobian=False)
-                cost_new = 0.5 * (rn @ rn + prn @ prn)
+                evaluation = _evaluate(problem, samples, trial, rotations)
+                cost_new = evaluation.cost
                 if cost_new < cost:
-                    state, damping = trial, max(damping / settings.damping_down, MIN_DAMPING)
+                    state, current, damping = trial, evaluation, max(damping / settings.damping_down, MIN_DAMPING)
                     costs.append(cost_new)
                     steps += 1
                     break
