@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -41,7 +40,9 @@ import numpy as np  # noqa: E402
 from scipy.sparse.linalg import splu  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from asteroid_photometry.from_images import mesh_light  # noqa: E402
+from timing import best_of  # noqa: E402
 
 N_IMAGES = 36
 LIGHT_DEG = 10.0
@@ -104,15 +105,6 @@ def whole_lu(normal, gradient, damping):
     damped.setdiag(damped.diagonal() + damping)
     lu = splu(damped, permc_spec="COLAMD", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     return lu.solve(gradient), lu.L.nnz + lu.U.nnz
-
-
-def best_of(repeats: int, call):
-    best, result = np.inf, None
-    for _ in range(repeats):
-        tick = time.perf_counter()
-        result = call()
-        best = min(best, time.perf_counter() - tick)
-    return best, result
 
 
 def main(argv=None):

@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -47,8 +46,10 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from asteroid_photometry.from_images import refine  # noqa: E402
 from asteroid_photometry.reflectance.laws import minnaert_brightness  # noqa: E402
+from timing import best_of  # noqa: E402
 
 SPIN_AXIS = np.array([0.0, 1.0, 0.0])
 LIGHT_DEG = 10.0
@@ -125,15 +126,6 @@ def naive_fit(samples, start_normals, points, axis):
         fit = least_squares(residuals, [*turns, samples["albedo"][point], samples["minnaert_k"][point]], method="lm")
         out[row] = [*normal_of(fit.x), fit.x[-2], fit.x[-1]]
     return out
-
-
-def best_of(repeats, run):
-    times, result = [], None
-    for _ in range(repeats):
-        began = time.perf_counter()
-        result = run()
-        times.append(time.perf_counter() - began)
-    return min(times), result
 
 
 def main(argv=None) -> int:

@@ -1,4 +1,5 @@
-"""The estimator benchmark (bench/bench_estimators.py) in its quick mode: every method reaches the same answer.
+"""The estimator benchmark (bench/bench_estimators.py) in its quick mode: every method reaches the same answer; the
+blur matrix's (bench/bench_blur_matrix.py) on small discs: both assemblies give the same products.
 
 Speed is not asserted (it depends on the machine); the answers are.
 """
@@ -73,3 +74,12 @@ def test_naive_solver_on_a_few_points(bench):
     assert np.degrees(np.arccos(np.clip(light @ bench.true_light(), -1, 1))) < 1e-4
     assert np.allclose(albedo_fit, albedo, atol=1e-6) and np.allclose(k_fit, k, atol=1e-6)
     assert n_evaluations > 20
+
+
+def test_blur_matrix_bench_assemblies_give_the_same_products(capsys):
+    spec = importlib.util.spec_from_file_location("bench_blur_matrix", BENCH.parent / "bench_blur_matrix.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    ratio, same = module.main(["--radius", "20", "--repeats", "1"])
+    assert same and ratio > 0
+    assert "products the same to the last bit: True" in capsys.readouterr().out
