@@ -41,6 +41,8 @@ model does not describe clipped values.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.stats import chi2 as chi2_law
 
@@ -129,12 +131,19 @@ def sample_pure(image: np.ndarray, uv: np.ndarray, variance=None, significance: 
     if not 0.0 < significance < 1.0:
         raise ValueError(f"purity: significance must lie in (0, 1), got {significance!r}")
     mean, chi2 = purity_statistic(image, uv, variance, relative_floor)
-    threshold = chi2_law.ppf(1.0 - significance, DEGREES_OF_FREEDOM)
+    threshold = _chi2_threshold(significance)
     support = bilinear_support(np.asarray(image), uv)
     pure = (chi2 <= threshold) & (support.min(axis=0) > 0) & (mean > 0)
     if isinstance(variance, SensorModel):
         pure &= ~np.any(saturated(support, variance), axis=0)
     return np.where(pure, mean, 0.0)
+
+
+@lru_cache(maxsize=16)
+def _chi2_threshold(significance: float) -> float:
+    """The chi-square that a pure sample exceeds with probability ``significance`` (the refinement asks it hundreds of
+    times a set, at one significance)."""
+    return float(chi2_law.ppf(1.0 - significance, DEGREES_OF_FREEDOM))
 
 
 class PurityTest:
