@@ -170,6 +170,9 @@ def test_too_few_pixels_is_a_clear_error():
     vertices, triangles, _ = _sphere(4)
     with pytest.raises(ValueError, match="usable pixels"):
         mesh_light.fit_mesh_light(vertices, triangles, centres, poses, intrinsics, images, None, _light(0.0), 0.9, 0.0)
+    # A surface beside every image (none of its pixels cast) fails the same way, naming the cause.
+    with pytest.raises(ValueError, match="usable pixels.*none of the 2 images"):
+        mesh_light.fit_mesh_light(vertices + [0.0, 0.0, 200.0], triangles, centres, poses, intrinsics, images, None, _light(0.0), 0.9, 0.0)
 
 
 def _pure(k: float) -> PureSampleCloud:

@@ -268,7 +268,7 @@ def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intri
             continue
         vv, uu = (axis.ravel() for axis in np.mgrid[v0:v1, u0:u1])
         pixels = vv * width + uu
-        d = (dirs_cam @ R)[pixels]
+        d = (dirs_cam @ R)[pixels]  # turned whole, then cut: the same directions, to the bit, as the whole image's
         hit = scene.cast_rays(o3d.core.Tensor(np.hstack([np.broadcast_to(C, d.shape), d]).astype(np.float32)))
         t = hit["t_hit"].numpy()
         on = np.isfinite(t)
@@ -289,6 +289,8 @@ def _cast(problem: _MeshProblem, h, light, rotations, centres, intrinsics: Intri
         if psf is not None:
             seen = np.flatnonzero(lit)
             support.append((face[seen], np.full(len(seen), position), -d[seen], position * height * width + pixels[seen]))
+    if not parts:
+        raise ValueError(f"the mesh shows only 0 usable pixels for {problem.n_par} unknowns: it projects into none of the {len(images)} images")
     face, image_pos, view, value, pixel = (np.concatenate(p) for p in zip(*parts))
     sigma = np.sqrt(variance(value) / value**2 + settings.floor**2)
     samples = _Samples(face, image_pos, view, np.log(value), sigma)
