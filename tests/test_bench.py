@@ -1,5 +1,6 @@
 """The estimator benchmark (bench/bench_estimators.py) in its quick mode: every method reaches the same answer; the
-blur matrix's (bench/bench_blur_matrix.py) on small discs: both assemblies give the same products.
+blur matrix's (bench/bench_blur_matrix.py) on small discs: both assemblies give the same products; the shot-noise
+draws' (bench/bench_shot_noise.py) on two images: the inverse CDF keeps its counts.
 
 Speed is not asserted (it depends on the machine); the answers are.
 """
@@ -83,3 +84,12 @@ def test_blur_matrix_bench_assemblies_give_the_same_products(capsys):
     ratio, same = module.main(["--radius", "20", "--repeats", "1"])
     assert same and ratio > 0
     assert "products the same to the last bit: True" in capsys.readouterr().out
+
+
+def test_shot_noise_bench_keeps_the_inverse_cdf_counts(capsys):
+    spec = importlib.util.spec_from_file_location("bench_shot_noise", BENCH.parent / "bench_shot_noise.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    ratio, changed = module.main(["--images", "2", "--repeats", "1"])
+    assert ratio > 0 and max(changed["inverse_cdf"]) < 1e-3
+    assert "inverse_cdf" in capsys.readouterr().out

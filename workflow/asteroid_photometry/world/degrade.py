@@ -287,7 +287,10 @@ def degrade_images(images, condition: ImagingCondition, sensor: SensorModel | No
        reaching the sensor, so the sensor's noise follows the scaled signal;
     3. sensor: ``apply_sensor_noise`` with ``sensor`` (skipped when
        ``sensor`` is None, which ``condition.sensor_level`` must then be too;
-       ``sensor_of`` finds it by name).
+       ``sensor_of`` finds it by name), its shot noise drawn by the inverse
+       CDF: each pixel's count follows that pixel's value alone, so a render
+       that differs in its last bits (another processor) gives the same
+       images but for a few counts, not another draw of the noise.
 
     Randomness: ``seed`` (anything ``numpy.random.SeedSequence`` takes)
     spawns one independent stream for the gains and one per image for its
@@ -314,6 +317,6 @@ def degrade_images(images, condition: ImagingCondition, sensor: SensorModel | No
         if condition.gain_sigma > 0:
             image = image * gain
         if sensor is not None:
-            image = apply_sensor_noise(image, sensor, np.random.default_rng(stream))
+            image = apply_sensor_noise(image, sensor, np.random.default_rng(stream), shot_draw="inverse_cdf")
         degraded.append(image)
     return degraded, gains

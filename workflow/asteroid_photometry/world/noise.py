@@ -67,6 +67,7 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
+from scipy.special import ndtri, pdtr
 
 CONFIG_KEY = "noise_levels"
 
@@ -175,20 +176,83 @@ def sensor_from_config(level: dict) -> SensorModel:
     )
 
 
-def apply_sensor_noise(image: np.ndarray, sensor: SensorModel, rng) -> np.ndarray:
+#: Steps of ``poisson_quantile``'s correction after its start; none past 4 was needed on 10 to 3,000 electrons.
+_QUANTILE_MAX_STEPS = 64
+
+#: How ``apply_sensor_noise`` can draw the shot noise (its ``shot_draw``).
+SHOT_DRAWS = ("sampler", "inverse_cdf")
+
+
+def poisson_quantile(expected, uniforms) -> np.ndarray:
+    """The Poisson law's quantile of ``uniforms`` (in [0, 1)) at means ``expected`` (>= 0), elementwise, as float64.
+
+    The smallest count ``k`` whose CDF (``scipy.special.pdtr``) reaches the
+    uniform: a Poisson draw when the uniform is uniform, the same counts as
+    ``scipy.stats.poisson.ppf``. Each count is a function of its own mean and
+    uniform alone. It starts from the Cornish-Fisher quantile, ``lam + sqrt(lam)
+    z + (z**2 - 1) / 6`` with ``z`` the normal quantile of the uniform, and
+    steps up or down while the CDF says so (about one step a count), only
+    where the step is still to be taken. A zero mean gives zero.
+    """
+    lam = np.asarray(expected, dtype=np.float64)
+    u = np.asarray(uniforms, dtype=np.float64)
+    if lam.shape != u.shape:
+        raise ValueError(f"poisson_quantile: {lam.shape} means but {u.shape} uniforms")
+    counts = np.zeros(lam.shape)
+    lit = np.flatnonzero(lam > 0.0)
+    lam, u = lam.ravel()[lit], u.ravel()[lit]
+    z = ndtri(np.clip(u, 1e-300, 1.0 - 1e-16))
+    k = np.maximum(np.floor(lam + np.sqrt(lam) * z + (z * z - 1.0) / 6.0), 0.0)
+    open_ = np.arange(lam.size)  # the counts that may still move
+    for _ in range(_QUANTILE_MAX_STEPS):
+        k_open, lam_open, u_open = k[open_], lam[open_], u[open_]
+        up = pdtr(k_open, lam_open) < u_open  # the CDF at k is still below the uniform: the count is higher
+        lower = ~up & (k_open > 0.0)
+        down = np.zeros_like(up)
+        down[lower] = pdtr(k_open[lower] - 1.0, lam_open[lower]) >= u_open[lower]  # one below already reaches it
+        moved = up | down
+        if not moved.any():
+            counts.flat[lit] = k
+            return counts
+        k[open_] = k_open + up - down
+        open_ = open_[moved]
+    raise RuntimeError(f"poisson_quantile: the count did not settle within {_QUANTILE_MAX_STEPS} steps")
+
+
+def apply_sensor_noise(image: np.ndarray, sensor: SensorModel, rng, shot_draw: str = "sampler") -> np.ndarray:
     """A noisy, digitised copy of the linear radiance ``image`` (any shape), in radiance units.
 
     ``rng`` is a ``numpy.random.Generator`` (or a seed for one); the result is
     a deterministic function of ``image``, ``sensor`` and the generator's
     state. Negative radiance (none in a rendering) counts as zero light. Returns float64.
+
+    ``shot_draw`` says how the shot noise is drawn (``SHOT_DRAWS``):
+
+    - ``"sampler"``: numpy's Poisson sampler, the fastest. It takes a number
+      of the generator's values that depends on each expected count, so a
+      change in one pixel's last digits can put every later pixel's noise out
+      of step: a render that differs in its last bits (another processor's
+      vector width) gives another draw of the whole image.
+    - ``"inverse_cdf"``: one uniform a pixel, turned into a count by
+      ``poisson_quantile``. Each count follows its own pixel alone and moves
+      by one electron, with a probability about the shift of its expected
+      count in electrons, when that moves: such a render keeps nearly all
+      its counts. About ten times as long as the sampler.
+
+    Both take the read noise after the shot noise, one normal a pixel.
     """
+    if shot_draw not in SHOT_DRAWS:
+        raise ValueError(f"apply_sensor_noise: shot_draw must be one of {SHOT_DRAWS}, got {shot_draw!r}")
     rng = np.random.default_rng(rng)
     radiance = np.asarray(image, dtype=np.float64)
     if not np.all(np.isfinite(radiance)):
         raise ValueError("apply_sensor_noise: the image has NaN or infinite pixels")
     gain = sensor.gain_e_per_radiance
     expected_e = np.clip(radiance, 0.0, _SATURATION_CAP * sensor.radiance_at_full_well) * gain
-    electrons = rng.poisson(expected_e).astype(np.float64)
+    if shot_draw == "sampler":
+        electrons = rng.poisson(expected_e).astype(np.float64)
+    else:
+        electrons = poisson_quantile(expected_e, rng.random(expected_e.shape))
     if sensor.read_noise_e > 0:
         electrons += rng.normal(0.0, sensor.read_noise_e, size=electrons.shape)
     codes = np.clip(np.rint(electrons / sensor.electrons_per_dn), 0, sensor.max_code)
