@@ -243,8 +243,9 @@ def test_small_run_table2_from_images_alone(small_run):
     assert (paper_method.k_err_refined.abs() < paper_method.k_err.abs()).all()
     # An AMICA-like camera (sensor noise, PSF, 2 % gains, 10 m priors, albedo and k varying over the body): every
     # set gives a row. The old 0.1 % purity tolerance kept no candidate of such images; the sensor's statistical
-    # test keeps thousands (small run: 2607-3262). The paper's estimator, final estimate (small run: light 0.52-2.12
-    # deg, |albedo| 0.0015-0.015, |k| 0.014-0.029), is well inside the paper's real-image errors (4.2 deg, 0.048, 0.071).
+    # test keeps thousands (small run at 5042bc4: 25,298-27,164). The paper's estimator, final estimate (small run at
+    # 5042bc4: light 0.34-0.57 deg, |albedo| 0.0021-0.0048, |k| 0.0053-0.0089), is well inside the paper's real-image
+    # errors (4.2 deg, 0.048, 0.071).
     amica = everything[everything.imaging == "amica"]
     assert len(amica) == 2 * 2 * 3 and (amica.status == "ok").all() and (amica.refine_accepted > 1000).all()
     amica_paper = amica[amica.method == "koizumi_lm"]

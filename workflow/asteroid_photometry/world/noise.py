@@ -237,7 +237,7 @@ def apply_sensor_noise(image: np.ndarray, sensor: SensorModel, rng, shot_draw: s
       ``poisson_quantile``. Each count follows its own pixel alone and moves
       by one electron, with a probability about the shift of its expected
       count in electrons, when that moves: such a render keeps nearly all
-      its counts. About ten times as long as the sampler.
+      its counts. About four times as long as the sampler (bench/bench_shot_noise.py).
 
     Both take the read noise after the shot noise, one normal a pixel.
     """
