@@ -232,7 +232,7 @@ def apply_sensor_noise(image: np.ndarray, sensor: SensorModel, rng, shot_draw: s
       of the generator's values that depends on each expected count, so a
       change in one pixel's last digits can put every later pixel's noise out
       of step: a render that differs in its last bits (another processor's
-      vector width) gives another draw of the whole image.
+      vector width) can give another draw of the rest of the image.
     - ``"inverse_cdf"``: one uniform a pixel, turned into a count by
       ``poisson_quantile``. Each count follows its own pixel alone and moves
       by one electron, with a probability about the shift of its expected
