@@ -187,3 +187,32 @@ def test_inverse_cdf_counts_follow_their_own_pixel():
     # A count moves with a probability about its shift in electrons (under 0.03), a code with a seventh of that.
     assert max(changed["inverse_cdf"]) < 1e-3
     assert max(changed["sampler"]) > 0.1
+
+
+def _simulated_draws(rng, n_draws, scale):
+    """Per-draw rows as noise_monte_carlo writes them, for an estimator whose light error is ``scale`` times the bound's."""
+    cov = np.array([[1.0, 0.0], [0.0, 0.01]])  # one dominant direction, as at light 0
+    delta = scale * rng.multivariate_normal([0, 0], cov, size=n_draws)
+    std = np.sqrt(np.trace(cov))
+    return pd.DataFrame({
+        "set_id": "s", "noise_level": "amica12",
+        "light_dir_err_deg": np.linalg.norm(delta, axis=1), "light_std_deg_bound": std,
+        "light_err_sigma": np.linalg.norm(delta, axis=1) / std,
+        "light_mahalanobis": np.sqrt(np.einsum("ni,ij,nj->n", delta, np.linalg.inv(cov), delta)),
+        "efficiency_albedo": 1.0 / scale**2, "efficiency_k": 1.0 / scale**2,
+    })
+
+
+@pytest.mark.parametrize("scale", [1.0, 2.0])
+def test_monte_carlo_summary_measures_the_excess_over_the_bound(scale):
+    from asteroid_photometry.evaluation.metrics import monte_carlo_summary
+
+    table = monte_carlo_summary(_simulated_draws(np.random.default_rng(3), 4000, scale)).set_index("set_id")
+    row = table.loc["s"]
+    assert row.draws == 4000
+    assert row.light_rms_over_bound == pytest.approx(scale, rel=0.05)
+    assert row.light_mahalanobis2_mean == pytest.approx(2 * scale**2, rel=0.08)
+    expected_within = 0.95 if scale == 1.0 else 0.68  # |N(0, 1)| <= 2 and <= 1
+    assert row.light_within_2sigma == pytest.approx(expected_within, abs=0.02)
+    assert row.efficiency_albedo == pytest.approx(1 / scale**2)
+    assert table.loc["all"].draws == 4000 and np.isnan(table.loc["all"].light_std_deg_bound)
