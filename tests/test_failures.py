@@ -411,12 +411,20 @@ def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_shor
     assert len(disk) == 1 and f"of disk but {tmp_path} has" in disk[0] and "image_size" in disk[0]
 
 
-@pytest.mark.parametrize("fractions, reason", [
-    ([0.1, 0.2, 0.05, 0.3], "reconstruct: the model is depth-reversed (seen from inside) on all 4 mapper seeds: outward fractions 0.10, 0.20, 0.05, 0.30"),
-    ([0.1, 0.9], None),
+@pytest.mark.parametrize("fractions, orders, reason", [
+    ([0.1, 0.2, 0.05, 0.3], [0.1] * 4,
+     "reconstruct: no sound model on any of 4 mapper seeds: outward fractions (0.5 needed; below, the model is depth-reversed, "
+     "seen from inside) 0.10, 0.20, 0.05, 0.30; cameras' largest distance from their place in the image order round the ring, "
+     "in turns between images (at most 0.5) 0.10, 0.10, 0.10, 0.10"),
+    ([0.1, 0.9], [0.1, 0.1], None),
+    ([0.9, 0.9, 0.2, 0.9], [18.0, 0.7, 0.1, 0.1], None),  # a ring closed wrongly, then out of order, then depth-reversed
+    ([0.9] * 4, [18.0, 2.0, 0.6, 9.0],
+     "reconstruct: no sound model on any of 4 mapper seeds: outward fractions (0.5 needed; below, the model is depth-reversed, "
+     "seen from inside) 0.90, 0.90, 0.90, 0.90; cameras' largest distance from their place in the image order round the ring, "
+     "in turns between images (at most 0.5) 18.00, 2.00, 0.60, 9.00"),
 ])
-def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set, tmp_path, monkeypatch, fractions, reason):
-    """The mapper and the outward test stubbed (a real depth-reversed model takes a full set): the reseeding loop and its record."""
+def test_a_model_unsound_on_every_seed_is_a_failure_of_the_data(small_set, tmp_path, monkeypatch, fractions, orders, reason):
+    """The mapper and both tests of a model stubbed (a real depth-reversed or wrongly closed model takes a full set): the reseeding loop and its record."""
     pytest.importorskip("pycolmap")
     from test_reconstruct import synthetic_model, synthetic_scene
     from asteroid_photometry.from_images import reconstruct as rc
@@ -436,14 +444,18 @@ def test_a_depth_reversed_model_on_every_seed_is_a_failure_of_the_data(small_set
     failures.write_status_json(tmp_path / "features" / "status.json")  # the matched set, never read by the stubbed mapper
     monkeypatch.setattr(table2.reconstruct, "map_matches", mapper)
     monkeypatch.setattr(table2, "outward_fraction", lambda result, min_track: fractions[len(seeds) - 1])
+    monkeypatch.setattr(table2, "ring_order_error", lambda result, phase_deg: orders[len(seeds) - 1])
     table2.reconstruct_stage(tmp_path / "mission", tmp_path / "features", tmp_path / "model", False, RECONSTRUCTION)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
-    assert seeds == list(range(len(fractions)))
     if reason is None:
+        assert seeds == list(range(len(fractions)))
         assert status == {"status": "ok"}
         report = json.loads((tmp_path / "model" / "report.json").read_text())
-        assert [attempt["outward_fraction"] for attempt in report["settings"]["mapper_attempts"]] == fractions
+        attempts = report["settings"]["mapper_attempts"]
+        assert [attempt["outward_fraction"] for attempt in attempts] == fractions
+        assert [attempt["ring_order_error_steps"] for attempt in attempts] == orders
     else:
+        assert seeds == list(range(table2.MAX_MAPPER_SEEDS))
         assert status == {"status": "failed", "reason": reason} and not (tmp_path / "model" / "report.json").exists()
-        with pytest.raises(DataFailure, match="depth-reversed"):
+        with pytest.raises(DataFailure, match="no sound model"):
             table2.read_reconstruction(tmp_path / "model")

@@ -399,6 +399,50 @@ def test_rotation_pairs_are_the_images_within_the_turn_across_the_wrap():
         rc.rotation_pairs(phase, 10.0)
 
 
+def _ring_centres(n_images, latitude_deg, seed):
+    """Camera centres of a ring of ``n_images`` seen from ``latitude_deg``, under a random similarity, with their phases."""
+    rng = np.random.default_rng(seed)
+    centres = cameras.camera_centres_body(cameras.body_to_camera_poses(n_images, 5000.0, view_latitude_deg=latitude_deg))
+    rotation = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    return 0.003 * centres @ rotation.T + rng.normal(size=3), np.arange(n_images) * 360.0 / n_images
+
+
+@pytest.mark.parametrize("n_images, latitude_deg", [(36, 0.0), (20, 20.0), (72, -35.0)])
+def test_ring_order_holds_for_cameras_in_time_order_in_any_frame(n_images, latitude_deg):
+    """A sound ring, in an arbitrary similarity frame, either way round, with cameras missing or only an arc of it: within the tolerance."""
+    centres, phase = _ring_centres(n_images, latitude_deg, seed=n_images)
+    step = 360.0 / n_images
+    assert rc.ring_step_deg(phase) == pytest.approx(step)
+    assert rc.ring_order_error_steps(centres, phase) < 1e-6
+    assert rc.ring_order_error_steps(centres, -phase) < 1e-6  # the other direction of travel
+    kept = np.ones(n_images, dtype=bool)
+    kept[[1, 2, n_images // 2]] = False  # images the mapper did not register
+    assert rc.ring_order_error_steps(centres[kept], phase[kept]) < 1e-6
+    arc = slice(0, n_images // 3 + 1)  # a third of the ring: the circle is fitted, not taken about the centroid
+    assert rc.ring_order_error_steps(centres[arc], phase[arc]) < 1e-6
+    # Each camera moved by a tenth of the spacing between cameras: within tolerance, but seen.
+    rng = np.random.default_rng(1)
+    spacing = np.linalg.norm(centres[1] - centres[0])
+    jitter = rng.normal(size=centres.shape)
+    jittered = centres + 0.1 * spacing * jitter / np.linalg.norm(jitter, axis=1, keepdims=True)
+    assert 0.01 < rc.ring_order_error_steps(jittered, phase) < rc.RING_ORDER_TOLERANCE_STEPS
+
+
+def test_ring_order_fails_for_a_ring_closed_wrongly_and_for_swapped_images():
+    centres, phase = _ring_centres(36, 0.0, seed=3)
+    folded = centres.copy()
+    folded[18:24] = centres[[35 - i for i in range(18, 24)]]  # a run bent onto the other side of the ring
+    assert rc.ring_order_error_steps(folded, phase) > 5.0
+    swapped = centres.copy()
+    swapped[[10, 11]] = centres[[11, 10]]  # two neighbours in each other's place: one step each
+    assert rc.ring_order_error_steps(swapped, phase) == pytest.approx(1.0, abs=0.1)
+    assert rc.ring_order_error_steps(swapped, phase) > rc.RING_ORDER_TOLERANCE_STEPS
+    with pytest.raises(ValueError, match="at least 3 cameras"):
+        rc.ring_order_error_steps(centres[:2], phase[:2])
+    with pytest.raises(ValueError, match="two distinct rotation phases"):
+        rc.ring_step_deg([5.0, 365.0])
+
+
 def test_matching_by_rotation_matches_only_the_neighbours_and_keeps_the_model(sphere_images, tmp_path):
     """With match_max_turn_deg only the pairs within that turn are matched (and recorded); the set still reconstructs."""
     from asteroid_photometry.experiments.table2 import feature_options, rotation_phase_deg

@@ -109,6 +109,20 @@ def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3
     return float(outward.mean())
 
 
+def ring_order_error(recon: reconstruct.SparseReconstruction, phase_deg) -> float:
+    """How far the model's cameras stray from the image order round their ring: ``reconstruct.ring_order_error_steps``
+    of its registered cameras' centres and those images' rotation phases (``phase_deg``, set order, from the image times).
+
+    Near 0 for a sound model; a mapper that closed the ring wrongly (joined it
+    through false matches, or bent a run of images onto the wrong side) leaves
+    cameras many turns between images from their place, while its points may
+    still reproject well. Reads the image times only: no prior, no truth.
+    """
+    centres = recon.camera_centres()
+    indices = np.array(sorted(centres))
+    return reconstruct.ring_order_error_steps(np.array([centres[index] for index in indices]), np.asarray(phase_deg, dtype=float)[indices])
+
+
 def oriented_cloud_of(recon: reconstruct.SparseReconstruction, min_track: int) -> cloud_lib.OrientedCloud:
     """The reconstruction's oriented cloud (``cloud.oriented_cloud``); :class:`DataFailure` if too few points are seen often enough."""
     _, xyz = recon.points3d()
@@ -165,15 +179,18 @@ def reconstruct_stage(mission_dir, features_dir, out_dir, use_priors: bool, sett
     ``features_dir`` is only read (``reconstruct.map_matches`` copies its
     database); the mission set gives the navigation priors. A model whose
     surface faces inwards (``outward_fraction`` below 0.5) is the
-    depth-reversed twin, not the body: the mapper is run again with the
-    next seed, up to ``MAX_MAPPER_SEEDS`` times, and the attempts are logged
-    and recorded in the report's settings. The matches are the same on
+    depth-reversed twin, not the body, and one whose cameras do not keep the
+    image order round their ring (``ring_order_error`` above
+    ``reconstruct.RING_ORDER_TOLERANCE_STEPS``) was closed wrongly: either
+    way the mapper is run again with the next seed, up to
+    ``MAX_MAPPER_SEEDS`` times, and the attempts are logged and recorded in
+    the report's settings. The matches are the same on
     every attempt (seeded once, by ``match_features_stage``): only the
     mapper's seed changes (the mapper's RANSACs, its choices and the final
     adjustment's). ``status.json`` in ``out_dir`` says ``ok``, or
     ``failed`` with the reason: too few images registered
     (``reconstruct.MIN_REGISTERED_IMAGES``), fewer than ``MIN_CLOUD_POINTS``
-    points, a depth-reversed model on every seed, or the features stage's
+    points, no sound model (above) on any seed, or the features stage's
     own failure (a blank set), passed on.
     """
     out_dir = Path(out_dir)
@@ -195,6 +212,7 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
         )
     status_path = Path(features_dir) / STATUS_FILE
     check_status(json.loads(status_path.read_text()), status_path)  # the features stage's failure, passed on
+    phase_deg = rotation_phase_deg(mission)
     attempts = []
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     for seed in range(MAX_MAPPER_SEEDS):
@@ -206,14 +224,25 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
         )
         n_registered = result.report.n_images_registered
         fraction = outward_fraction(result, settings["min_track"])
-        attempts.append({"seed": seed, "outward_fraction": fraction, "n_images_registered": n_registered})
-        if fraction >= 0.5:
+        order = ring_order_error(result, phase_deg)
+        attempts.append({"seed": seed, "outward_fraction": fraction, "ring_order_error_steps": order, "n_images_registered": n_registered})
+        if fraction >= 0.5 and order <= reconstruct.RING_ORDER_TOLERANCE_STEPS:
             break
-        log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
+        if fraction < 0.5:
+            log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
+        else:
+            log.warning(
+                "mapper seed %d gave cameras out of the image order round their ring (one %.2f turns between images from its "
+                "place, at most %.2f allowed): a ring closed wrongly; trying the next seed", seed, order, reconstruct.RING_ORDER_TOLERANCE_STEPS,
+            )
     else:
         raise DataFailure(
-            f"the model is depth-reversed (seen from inside) on all {MAX_MAPPER_SEEDS} mapper seeds: outward fractions "
+            f"no sound model on any of {MAX_MAPPER_SEEDS} mapper seeds: outward fractions (0.5 needed; below, the model is "
+            "depth-reversed, seen from inside) "
             + ", ".join(f"{attempt['outward_fraction']:.2f}" for attempt in attempts)
+            + f"; cameras' largest distance from their place in the image order round the ring, in turns between images "
+            f"(at most {reconstruct.RING_ORDER_TOLERANCE_STEPS:g}) "
+            + ", ".join(f"{attempt['ring_order_error_steps']:.2f}" for attempt in attempts)
         )
     result.report.settings["mapper_attempts"] = attempts
     result.write(part)

@@ -792,6 +792,62 @@ def _warn_if_far_from_priors(report: ReconstructionReport) -> None:
         )
 
 
+#: How far a camera may sit, round the ring the cameras make, from where its image's time puts it: a fraction of the
+#: turn between consecutive images. Half of it, so that every camera keeps its place in the image order: a bound set by
+#: what the check means, not fitted to any set. On the tuning sets' 45 models (tuning_mid's sets at 30 images a turn and
+#: the map sets at 36, with and without priors) the largest was 0.13 of a turn between images; on the paper's sets (all
+#: four imaging conditions, two runs) 0.16, but for the one model whose ring the mapper closed wrongly (without priors,
+#: its cameras 3,460 m RMS from where they were), which put a camera 18 turns between images (171 degrees) from its place
+#: (docs/table2.md, section 1).
+RING_ORDER_TOLERANCE_STEPS = 0.5
+
+
+def ring_step_deg(phase_deg) -> float:
+    """The median turn (degrees) between consecutive images of a ring, from their rotation phases (modulo 360)."""
+    phase = np.sort(np.unique(np.round(np.asarray(phase_deg, dtype=float) % 360.0, 9)))
+    if phase.size < 2:
+        raise ValueError(f"a ring needs at least two distinct rotation phases, got {phase.size}")
+    return float(np.median(np.diff(np.append(phase, phase[0] + 360.0))))
+
+
+def ring_order_residuals_deg(centres, phase_deg) -> np.ndarray:
+    """How far each camera sits round the ring of the cameras from where its rotation phase puts it (degrees, signed).
+
+    ``centres`` (n, 3): camera centres in any frame (a similarity of the body
+    frame: a model without priors); ``phase_deg`` (n,): each image's rotation
+    phase from its time. The body turns under a camera fixed in space, so in
+    the body frame the cameras of a sequence go round one circle, each at its
+    phase. The circle is fitted (the plane of the centres, then the circle in
+    it by least squares), each centre's angle round it taken, and the phases
+    matched to the angles up to a common offset and the direction of travel:
+    the residuals are what is left. A model the mapper closed wrongly puts
+    whole runs of cameras tens of degrees or more from their place.
+    """
+    centres = np.asarray(centres, dtype=float).reshape(-1, 3)
+    phase = np.asarray(phase_deg, dtype=float).reshape(-1)
+    if len(centres) < 3 or len(phase) != len(centres):
+        raise ValueError(f"the ring check needs at least 3 cameras with one phase each, got {len(centres)} centres and {len(phase)} phases")
+    offsets = centres - centres.mean(axis=0)
+    basis = np.linalg.svd(offsets, full_matrices=False)[2][:2]
+    xy = offsets @ basis.T
+    design = np.column_stack([2.0 * xy, np.ones(len(xy))])
+    (cx, cy, _), *_ = np.linalg.lstsq(design, np.sum(xy**2, axis=1), rcond=None)
+    angle = np.degrees(np.arctan2(xy[:, 1] - cy, xy[:, 0] - cx))
+    best = None
+    for direction in (1.0, -1.0):
+        difference = np.radians(angle - direction * phase)
+        offset = np.degrees(np.angle(np.exp(1j * difference).mean()))
+        residual = (np.degrees(difference) - offset + 180.0) % 360.0 - 180.0
+        if best is None or np.sum(residual**2) < np.sum(best**2):
+            best = residual
+    return best
+
+
+def ring_order_error_steps(centres, phase_deg) -> float:
+    """The largest of :func:`ring_order_residuals_deg`, in turns between consecutive images (:func:`ring_step_deg`)."""
+    return float(np.max(np.abs(ring_order_residuals_deg(centres, phase_deg))) / ring_step_deg(phase_deg))
+
+
 def rotation_pairs(phase_deg, max_turn_deg: float) -> list[tuple[int, int]]:
     """The image pairs ``(i, j)``, ``i < j``, whose rotation phases ``phase_deg`` differ by at most ``max_turn_deg`` (modulo 360).
 
