@@ -232,8 +232,8 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
             log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
         else:
             log.warning(
-                "mapper seed %d gave cameras out of the image order round their ring (one %.2f turns between images from its "
-                "place, at most %.2f allowed): a ring closed wrongly; trying the next seed", seed, order, reconstruct.RING_ORDER_TOLERANCE_STEPS,
+                "mapper seed %d gave cameras out of the image order round their ring (a camera %.2f turns between images from "
+                "its place, at most %.2f allowed): a ring closed wrongly; trying the next seed", seed, order, reconstruct.RING_ORDER_TOLERANCE_STEPS,
             )
     else:
         raise DataFailure(
