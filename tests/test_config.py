@@ -17,6 +17,7 @@ SHIPPED_CONFIGS = [
     REPO / "config" / "config.yaml", REPO / "config" / "test.yaml", REPO / "config" / "tuning.yaml", REPO / "config" / "tuning_mid.yaml", REPO / "config" / "amica_ablation.yaml",
     REPO / "config" / "conditions_geometry.yaml", REPO / "config" / "oblique_ablation.yaml", REPO / "config" / "map_draws.yaml",
     REPO / "config" / "map_parts.yaml", REPO / "config" / "noise_draws.yaml",
+    REPO / "config" / "amica_draws.yaml",
 ]
 
 
