@@ -412,16 +412,18 @@ def test_footprint_scales_with_the_pixels_and_warns_where_the_machine_falls_shor
 
 
 @pytest.mark.parametrize("fractions, orders, reason", [
-    ([0.1, 0.2, 0.05, 0.3], [0.1] * 4,
+    ([0.1, 0.2, 0.05, 0.3], [(0.1, True)] * 4,
      "reconstruct: no sound model on any of 4 mapper seeds: outward fractions (0.5 needed; below, the model is depth-reversed, "
      "seen from inside) 0.10, 0.20, 0.05, 0.30; cameras' largest distance from their place in the image order round the ring, "
-     "in turns between images (at most 0.5) 0.10, 0.10, 0.10, 0.10"),
-    ([0.1, 0.9], [0.1, 0.1], None),
-    ([0.9, 0.9, 0.2, 0.9], [18.0, 0.7, 0.1, 0.1], None),  # a ring closed wrongly, then out of order, then depth-reversed
-    ([0.9] * 4, [18.0, 2.0, 0.6, 9.0],
+     "in turns between images (under 1 needed) 0.10, 0.10, 0.10, 0.10; the image order kept (needed) yes, yes, yes, yes"),
+    ([0.1, 0.9], [(0.1, True), (0.1, True)], None),
+    ([0.9], [(0.55, True)], None),  # a weak part of a sound model: a camera half a turn between images from its place, in order
+    # A ring closed wrongly, then two cameras in each other's place (out of order, within a turn), then depth-reversed.
+    ([0.9, 0.9, 0.2, 0.9], [(18.0, False), (0.95, False), (0.1, True), (0.1, True)], None),
+    ([0.9] * 4, [(18.0, False), (2.0, True), (0.6, False), (9.0, False)],
      "reconstruct: no sound model on any of 4 mapper seeds: outward fractions (0.5 needed; below, the model is depth-reversed, "
      "seen from inside) 0.90, 0.90, 0.90, 0.90; cameras' largest distance from their place in the image order round the ring, "
-     "in turns between images (at most 0.5) 18.00, 2.00, 0.60, 9.00"),
+     "in turns between images (under 1 needed) 18.00, 2.00, 0.60, 9.00; the image order kept (needed) no, yes, no, no"),
 ])
 def test_a_model_unsound_on_every_seed_is_a_failure_of_the_data(small_set, tmp_path, monkeypatch, fractions, orders, reason):
     """The mapper and both tests of a model stubbed (a real depth-reversed or wrongly closed model takes a full set): the reseeding loop and its record."""
@@ -444,7 +446,7 @@ def test_a_model_unsound_on_every_seed_is_a_failure_of_the_data(small_set, tmp_p
     failures.write_status_json(tmp_path / "features" / "status.json")  # the matched set, never read by the stubbed mapper
     monkeypatch.setattr(table2.reconstruct, "map_matches", mapper)
     monkeypatch.setattr(table2, "outward_fraction", lambda result, min_track: fractions[len(seeds) - 1])
-    monkeypatch.setattr(table2, "ring_order_error", lambda result, phase_deg: orders[len(seeds) - 1])
+    monkeypatch.setattr(table2, "ring_order", lambda result, phase_deg: rc.RingOrder(*orders[len(seeds) - 1]))
     table2.reconstruct_stage(tmp_path / "mission", tmp_path / "features", tmp_path / "model", False, RECONSTRUCTION)
     status = json.loads((tmp_path / "model" / "status.json").read_text())
     if reason is None:
@@ -453,7 +455,7 @@ def test_a_model_unsound_on_every_seed_is_a_failure_of_the_data(small_set, tmp_p
         report = json.loads((tmp_path / "model" / "report.json").read_text())
         attempts = report["settings"]["mapper_attempts"]
         assert [attempt["outward_fraction"] for attempt in attempts] == fractions
-        assert [attempt["ring_order_error_steps"] for attempt in attempts] == orders
+        assert [(attempt["ring_order_error_steps"], attempt["ring_order_kept"]) for attempt in attempts] == orders
     else:
         assert seeds == list(range(table2.MAX_MAPPER_SEEDS))
         assert status == {"status": "failed", "reason": reason} and not (tmp_path / "model" / "report.json").exists()

@@ -109,18 +109,19 @@ def outward_fraction(recon: reconstruct.SparseReconstruction, min_track: int = 3
     return float(outward.mean())
 
 
-def ring_order_error(recon: reconstruct.SparseReconstruction, phase_deg) -> float:
-    """How far the model's cameras stray from the image order round their ring: ``reconstruct.ring_order_error_steps``
-    of its registered cameras' centres and those images' rotation phases (``phase_deg``, set order, from the image times).
+def ring_order(recon: reconstruct.SparseReconstruction, phase_deg) -> reconstruct.RingOrder:
+    """How the model's cameras go round their ring against the image order: ``reconstruct.ring_order`` of its registered
+    cameras' centres and those images' rotation phases (``phase_deg``, set order, from the image times).
 
-    Near 0 for a sound model; a mapper that closed the ring wrongly (joined it
-    through false matches, or bent a run of images onto the wrong side) leaves
-    cameras many turns between images from their place, while its points may
-    still reproject well. Reads the image times only: no prior, no truth.
+    A sound model keeps the order, each camera near its place; a mapper that
+    closed the ring wrongly (joined it through false matches, or bent a run of
+    images onto the wrong side) leaves cameras out of order and many turns
+    between images from their place, while its points may still reproject
+    well. Reads the image times only: no prior, no truth.
     """
     centres = recon.camera_centres()
     indices = np.array(sorted(centres))
-    return reconstruct.ring_order_error_steps(np.array([centres[index] for index in indices]), np.asarray(phase_deg, dtype=float)[indices])
+    return reconstruct.ring_order(np.array([centres[index] for index in indices]), np.asarray(phase_deg, dtype=float)[indices])
 
 
 def oriented_cloud_of(recon: reconstruct.SparseReconstruction, min_track: int) -> cloud_lib.OrientedCloud:
@@ -180,8 +181,8 @@ def reconstruct_stage(mission_dir, features_dir, out_dir, use_priors: bool, sett
     database); the mission set gives the navigation priors. A model whose
     surface faces inwards (``outward_fraction`` below 0.5) is the
     depth-reversed twin, not the body, and one whose cameras do not keep the
-    image order round their ring (``ring_order_error`` above
-    ``reconstruct.RING_ORDER_TOLERANCE_STEPS``) was closed wrongly: either
+    image order round their ring (``ring_order``: a camera out of order, or
+    ``reconstruct.RING_ORDER_TOLERANCE_STEPS`` or more from its place) was closed wrongly: either
     way the mapper is run again with the next seed, up to
     ``MAX_MAPPER_SEEDS`` times, and the attempts are logged and recorded in
     the report's settings. The matches are the same on
@@ -224,16 +225,20 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
         )
         n_registered = result.report.n_images_registered
         fraction = outward_fraction(result, settings["min_track"])
-        order = ring_order_error(result, phase_deg)
-        attempts.append({"seed": seed, "outward_fraction": fraction, "ring_order_error_steps": order, "n_images_registered": n_registered})
-        if fraction >= 0.5 and order <= reconstruct.RING_ORDER_TOLERANCE_STEPS:
+        ring = ring_order(result, phase_deg)
+        attempts.append({
+            "seed": seed, "outward_fraction": fraction, "ring_order_error_steps": ring.error_steps, "ring_order_kept": ring.order_kept,
+            "n_images_registered": n_registered,
+        })
+        if fraction >= 0.5 and ring.sound:
             break
         if fraction < 0.5:
             log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
         else:
             log.warning(
-                "mapper seed %d gave cameras out of the image order round their ring (a camera %.2f turns between images from "
-                "its place, at most %.2f allowed): a ring closed wrongly; trying the next seed", seed, order, reconstruct.RING_ORDER_TOLERANCE_STEPS,
+                "mapper seed %d gave cameras %s round their ring (a camera %.2f turns between images from its place, under %g "
+                "needed): a ring closed wrongly; trying the next seed", seed, "in the image order" if ring.order_kept else "out of the image order",
+                ring.error_steps, reconstruct.RING_ORDER_TOLERANCE_STEPS,
             )
     else:
         raise DataFailure(
@@ -241,8 +246,10 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
             "depth-reversed, seen from inside) "
             + ", ".join(f"{attempt['outward_fraction']:.2f}" for attempt in attempts)
             + f"; cameras' largest distance from their place in the image order round the ring, in turns between images "
-            f"(at most {reconstruct.RING_ORDER_TOLERANCE_STEPS:g}) "
+            f"(under {reconstruct.RING_ORDER_TOLERANCE_STEPS:g} needed) "
             + ", ".join(f"{attempt['ring_order_error_steps']:.2f}" for attempt in attempts)
+            + "; the image order kept (needed) "
+            + ", ".join("yes" if attempt["ring_order_kept"] else "no" for attempt in attempts)
         )
     result.report.settings["mapper_attempts"] = attempts
     result.write(part)
