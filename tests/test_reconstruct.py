@@ -432,12 +432,12 @@ def test_ring_order_holds_for_cameras_in_time_order_in_any_frame(n_images, latit
 
 def _moved_round(centres, index, steps, n_images):
     """``centres`` with camera ``index`` moved round the ring (the circle through the centres) by ``steps`` turns between images."""
+    from scipy.spatial.transform import Rotation
+
     middle = centres.mean(axis=0)
-    normal = np.linalg.svd(centres - middle)[2][2]
-    angle = np.radians(steps * 360.0 / n_images)
-    offset = centres[index] - middle
-    moved = centres.copy()  # Rodrigues' rotation about the ring's axis
-    moved[index] = middle + offset * np.cos(angle) + np.cross(normal, offset) * np.sin(angle) + normal * (normal @ offset) * (1 - np.cos(angle))
+    axis = np.linalg.svd(centres - middle)[2][2]
+    moved = centres.copy()
+    moved[index] = middle + Rotation.from_rotvec(np.radians(steps * 360.0 / n_images) * axis).apply(centres[index] - middle)
     return moved
 
 
