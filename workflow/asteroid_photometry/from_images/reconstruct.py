@@ -797,10 +797,10 @@ def _warn_if_far_from_priors(report: ReconstructionReport) -> None:
 #: other half is the image order itself (:func:`ring_order`): every camera between its two neighbours. Both are set by what
 #: the check means, not fitted to any set. Measured (docs/table2.md, section 1): sound models put every camera within 0.16
 #: of a turn between images of its place (the paper's sets, all four imaging conditions, two runs; 45 models of
-#: tuning_mid's and the map sets), but for one model of the tuning grid (30 images a turn, albedo 0.15, k 0.55, light 5,
-#: noise-free, without priors) that put two neighbours 0.35 and 0.55 from their places, apart but in order, its cameras
-#: within 0.54 of a turn between images of the truth; the mapper closed a ring wrongly twice: 18 turns between images
-#: (171 degrees) on a paper set, one image placed on another's (1.9) on the grid.
+#: tuning_mid's and the map sets), but for three models of the tuning grid (k 0.55, without priors, at 30 and 20 images
+#: a turn) with two neighbours 0.35 to 0.74 from their places, in order, where a weakly tied part of the ring left them
+#: (their errors against the true cameras the same); the mapper closed a ring wrongly twice: 18 turns between images
+#: (171 degrees) on a paper set, one image placed on another's (1.9, out of order) on the grid.
 RING_ORDER_TOLERANCE_STEPS = 1.0
 
 
