@@ -413,19 +413,19 @@ def test_ring_order_holds_for_cameras_in_time_order_in_any_frame(n_images, latit
     centres, phase = _ring_centres(n_images, latitude_deg, seed=n_images)
     step = 360.0 / n_images
     assert rc.ring_step_deg(phase) == pytest.approx(step)
-    assert rc.ring_order_error_steps(centres, phase) < 1e-6
-    assert rc.ring_order_error_steps(centres, -phase) < 1e-6  # the other direction of travel
+    assert rc.ring_order(centres, phase).error_steps < 1e-6
+    assert rc.ring_order(centres, -phase).error_steps < 1e-6  # the other direction of travel
     kept = np.ones(n_images, dtype=bool)
     kept[[1, 2, n_images // 2]] = False  # images the mapper did not register
-    assert rc.ring_order_error_steps(centres[kept], phase[kept]) < 1e-6
+    assert rc.ring_order(centres[kept], phase[kept]).error_steps < 1e-6
     arc = slice(0, n_images // 3 + 1)  # a third of the ring: the circle is fitted, not taken about the centroid
-    assert rc.ring_order_error_steps(centres[arc], phase[arc]) < 1e-6
+    assert rc.ring_order(centres[arc], phase[arc]).error_steps < 1e-6
     # Each camera moved by a tenth of the spacing between cameras: within tolerance, but seen.
     rng = np.random.default_rng(1)
     spacing = np.linalg.norm(centres[1] - centres[0])
     jitter = rng.normal(size=centres.shape)
     jittered = centres + 0.1 * spacing * jitter / np.linalg.norm(jitter, axis=1, keepdims=True)
-    assert 0.01 < rc.ring_order_error_steps(jittered, phase) < 0.5
+    assert 0.01 < rc.ring_order(jittered, phase).error_steps < 0.5
     for ring, phases in ((centres, phase), (centres, -phase), (centres[kept], phase[kept]), (centres[arc], phase[arc]), (jittered, phase)):
         assert rc.ring_order(ring, phases).sound
 
@@ -458,18 +458,18 @@ def test_ring_order_fails_for_a_ring_closed_wrongly_and_for_swapped_images():
     centres, phase = _ring_centres(36, 0.0, seed=3)
     folded = centres.copy()
     folded[18:24] = centres[[35 - i for i in range(18, 24)]]  # a run bent onto the other side of the ring
-    assert rc.ring_order_error_steps(folded, phase) > 5.0
+    assert rc.ring_order(folded, phase).error_steps > 5.0
     assert not rc.ring_order(folded, phase).order_kept and not rc.ring_order(folded, phase).sound
     swapped = centres.copy()
     swapped[[10, 11]] = centres[[11, 10]]  # two neighbours in each other's place: one step each
-    assert rc.ring_order_error_steps(swapped, phase) == pytest.approx(1.0, abs=0.1)
+    assert rc.ring_order(swapped, phase).error_steps == pytest.approx(1.0, abs=0.1)
     assert not rc.ring_order(swapped, phase).order_kept and not rc.ring_order(swapped, phase).sound
     doubled = centres.copy()
     doubled[2] = centres[0]  # one image placed on another's, two before it (a tuning set: 1.9 turns between images)
-    assert rc.ring_order_error_steps(doubled, phase) == pytest.approx(2.0, abs=0.1)
+    assert rc.ring_order(doubled, phase).error_steps == pytest.approx(2.0, abs=0.1)
     assert not rc.ring_order(doubled, phase).order_kept and not rc.ring_order(doubled, phase).sound
     with pytest.raises(ValueError, match="at least 3 cameras"):
-        rc.ring_order_error_steps(centres[:2], phase[:2])
+        rc.ring_order(centres[:2], phase[:2]).error_steps
     with pytest.raises(ValueError, match="two distinct rotation phases"):
         rc.ring_step_deg([5.0, 365.0])
 

@@ -846,11 +846,6 @@ def ring_order_residuals_deg(centres, phase_deg) -> np.ndarray:
     return best
 
 
-def ring_order_error_steps(centres, phase_deg) -> float:
-    """The largest of :func:`ring_order_residuals_deg`, in turns between consecutive images (:func:`ring_step_deg`)."""
-    return ring_order(centres, phase_deg).error_steps
-
-
 @dataclass(frozen=True)
 class RingOrder:
     """How a model's cameras go round their ring against their images' rotation phases (:func:`ring_order`)."""
@@ -867,9 +862,9 @@ class RingOrder:
 def ring_order(centres, phase_deg) -> RingOrder:
     """The ring check of a model's camera centres (any similarity frame) against their images' rotation phases.
 
-    Besides each camera's distance from its place (:func:`ring_order_error_steps`), whether they keep the image order:
-    going from image to image in the order of their phases (round the ring and back to the first), each camera must
-    advance round the circle the way the others go. A folded run or two cameras in each other's place go back; a camera
+    The largest of :func:`ring_order_residuals_deg` in turns between consecutive images (:func:`ring_step_deg`), and
+    whether the cameras keep the image order: going from image to image in the order of their phases (round the ring
+    and back to the first), each camera must advance round the circle the way the others go. A folded run or two cameras in each other's place go back; a camera
     a weak part of the model leaves half a turn between images out of place does not.
     """
     phase = np.asarray(phase_deg, dtype=float).reshape(-1)
