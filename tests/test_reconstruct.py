@@ -247,6 +247,53 @@ def test_sparse_reconstruction_round_trip_with_tracks(tmp_path):
     assert rc.rms(tracks["uv"] - projected) == pytest.approx(0.2 * np.sqrt(2), rel=0.15)
 
 
+def test_images_taken_out_of_a_model_leave_a_copy_adjusted_and_reported_again():
+    """``without_images``: the images deregistered with their observations, the rest adjusted again (with the priors
+    where the model had them) and a new report naming them; the model it came from is left as it was."""
+    poses, intrinsics, points = synthetic_scene(n_points=40)
+    model = synthetic_model(poses, intrinsics, points, pixel_noise=0.3, seed=2)
+    prior_centres, _ = true_centres_by_image_id(poses, noise_m=0.05, seed=4)
+    report = rc.model_report(model, len(poses), prior_centres, camera_position_sigma_m=0.05, tie_point_sigma_px=1.0, settings={"seed": 0})
+    result = rc.SparseReconstruction(model, report, prior_centres)
+    before = result.camera_centres()
+    kept = result.without_images([7, 3])
+    assert list(kept.registered_indices) == [index for index in range(N_IMAGES) if index not in (3, 7)]
+    assert kept.report.n_images_registered == N_IMAGES - 2 and kept.report.n_images == N_IMAGES
+    assert kept.report.settings == {"seed": 0, "images_taken_out": [3, 7]}
+    assert kept.report.n_observations == len(points) * (N_IMAGES - 2)  # the two images' observations went with them
+    assert kept.report.world_frame == "body" and kept.report.cam_pos_rms_m is not None
+    assert kept.report.cam_pos_rms_m != report.cam_pos_rms_m  # adjusted again: the priors of ten cameras, not twelve
+    assert rc.rms(np.array([kept.camera_centres()[index] - before[index] for index in kept.registered_indices])) < 0.01 * DISTANCE_M
+    assert result.report.n_images_registered == N_IMAGES and list(result.registered_indices) == list(range(N_IMAGES))
+    assert result.camera_centres().keys() == before.keys()
+    with pytest.raises(ValueError, match=r"images \[12\] are not registered"):
+        result.without_images([2, 12])
+
+
+def test_ring_outliers_are_the_stray_cameras_of_a_model_otherwise_sound():
+    """The cameras to take out so that the rest keep the order: none for a sound ring; the stray ones, farthest first, up
+    to the number allowed; none will do for a ring closed wrongly."""
+    centres, phase = _ring_centres(30, 0.0, seed=6)
+    registered = np.arange(1, 25)  # an arc of 24 of 30 images, as the tuning set that asked for it
+    assert rc.ring_outliers(centres[registered], phase[registered], 2).size == 0
+    ahead = 1.0 if rc.ring_order_residuals_deg(_moved_round(centres, 12, 0.3, 30), phase)[12] > 0 else -1.0
+    # Its last two cameras fall back onto the one before them (0.6 and 1.6 turns between images back, out of order).
+    stray = _moved_round(_moved_round(centres, 23, -1.0 * ahead, 30), 24, -2.0 * ahead, 30)[registered]
+    assert not rc.ring_order(stray, phase[registered]).sound
+    rows = rc.ring_outliers(stray, phase[registered], 2)
+    assert list(registered[rows]) == [23, 24]
+    assert rc.ring_order(np.delete(stray, rows, axis=0), np.delete(phase[registered], rows)).sound
+    assert rc.ring_outliers(stray, phase[registered], 1) is None  # one is not enough
+    doubled = centres.copy()
+    doubled[2] = centres[0]  # one image placed on another's: that one
+    assert list(rc.ring_outliers(doubled, phase, 3)) == [2]
+    folded = centres.copy()
+    folded[12:18] = centres[[29 - i for i in range(12, 18)]]  # a run bent onto the other side of the ring
+    assert rc.ring_outliers(folded, phase, 3) is None
+    assert not rc.ring_order(doubled[:3], phase[:3]).sound
+    assert rc.ring_outliers(doubled[:3], phase[:3], 3) is None  # never fewer than three cameras left
+
+
 # ----------------------------------------------------------------------------------------------
 # The whole pipeline on synthetic images
 # ----------------------------------------------------------------------------------------------

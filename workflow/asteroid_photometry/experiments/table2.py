@@ -119,9 +119,26 @@ def ring_order(recon: reconstruct.SparseReconstruction, phase_deg) -> reconstruc
     between images from their place, while its points may still reproject
     well. Reads the image times only: no prior, no truth.
     """
+    indices, centres = _registered_centres(recon)
+    return reconstruct.ring_order(centres, np.asarray(phase_deg, dtype=float)[indices])
+
+
+def ring_outliers(recon: reconstruct.SparseReconstruction, phase_deg) -> np.ndarray | None:
+    """The set indices of the cameras to take out of the model so that the rest keep the image order round their ring
+    (``reconstruct.ring_outliers``, at most ``reconstruct.MAX_RING_OUTLIER_SHARE`` of the registered cameras); empty for
+    a sound model, ``None`` where that share is not enough. Reads the image times only."""
+    indices, centres = _registered_centres(recon)
+    rows = reconstruct.ring_outliers(
+        centres, np.asarray(phase_deg, dtype=float)[indices], int(reconstruct.MAX_RING_OUTLIER_SHARE * len(indices) + 1e-9),
+    )
+    return None if rows is None else indices[rows]
+
+
+def _registered_centres(recon: reconstruct.SparseReconstruction) -> tuple[np.ndarray, np.ndarray]:
+    """The registered images' set indices (ascending) and their camera centres (n, 3), in the model's frame."""
     centres = recon.camera_centres()
-    indices = np.array(sorted(centres))
-    return reconstruct.ring_order(np.array([centres[index] for index in indices]), np.asarray(phase_deg, dtype=float)[indices])
+    indices = np.array(sorted(centres), dtype=int)
+    return indices, np.array([centres[index] for index in indices]).reshape(-1, 3)
 
 
 def oriented_cloud_of(recon: reconstruct.SparseReconstruction, min_track: int) -> cloud_lib.OrientedCloud:
@@ -188,7 +205,11 @@ def reconstruct_stage(mission_dir, features_dir, out_dir, use_priors: bool, sett
     the report's settings. The matches are the same on
     every attempt (seeded once, by ``match_features_stage``): only the
     mapper's seed changes (the mapper's RANSACs, its choices and the final
-    adjustment's). ``status.json`` in ``out_dir`` says ``ok``, or
+    adjustment's). Where no seed gives a sound model, the outward-facing
+    model that keeps the order with fewest cameras taken out, at most
+    ``reconstruct.MAX_RING_OUTLIER_SHARE`` of them, is kept without them,
+    adjusted again (``_without_ring_outliers``; the report's settings name
+    them in ``images_taken_out``). ``status.json`` in ``out_dir`` says ``ok``, or
     ``failed`` with the reason: too few images registered
     (``reconstruct.MIN_REGISTERED_IMAGES``), fewer than ``MIN_CLOUD_POINTS``
     points, no sound model (above) on any seed, or the features stage's
@@ -214,7 +235,7 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
     status_path = Path(features_dir) / STATUS_FILE
     check_status(json.loads(status_path.read_text()), status_path)  # the features stage's failure, passed on
     phase_deg = rotation_phase_deg(mission)
-    attempts = []
+    attempts, facing_out = [], []
     part = files.partial_directory(out_dir)  # renamed to out_dir when complete
     for seed in range(MAX_MAPPER_SEEDS):
         result = reconstruct.map_matches(
@@ -232,6 +253,8 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
         })
         if fraction >= 0.5 and ring.sound:
             break
+        if fraction >= 0.5:
+            facing_out.append((seed, result))
         if fraction < 0.5:
             log.warning("mapper seed %d gave a depth-reversed model (%.0f %% of normals face outwards); trying the next seed", seed, 100 * fraction)
         else:
@@ -241,21 +264,53 @@ def _reconstruct(mission_dir, features_dir, out_dir, use_priors: bool, settings:
                 ring.error_steps, reconstruct.RING_ORDER_TOLERANCE_STEPS,
             )
     else:
-        raise DataFailure(
-            f"no sound model on any of {MAX_MAPPER_SEEDS} mapper seeds: outward fractions (0.5 needed; below, the model is "
-            "depth-reversed, seen from inside) "
-            + ", ".join(f"{attempt['outward_fraction']:.2f}" for attempt in attempts)
-            + f"; cameras' largest distance from their place in the image order round the ring, in turns between images "
-            f"(under {reconstruct.RING_ORDER_TOLERANCE_STEPS:g} needed) "
-            + ", ".join(f"{attempt['ring_order_error_steps']:.2f}" for attempt in attempts)
-            + "; the image order kept (needed) "
-            + ", ".join("yes" if attempt["ring_order_kept"] else "no" for attempt in attempts)
-        )
+        result = _without_ring_outliers(facing_out, phase_deg, settings["min_track"])
+        if result is None:
+            raise DataFailure(
+                f"no sound model on any of {MAX_MAPPER_SEEDS} mapper seeds: outward fractions (0.5 needed; below, the model is "
+                "depth-reversed, seen from inside) "
+                + ", ".join(f"{attempt['outward_fraction']:.2f}" for attempt in attempts)
+                + f"; cameras' largest distance from their place in the image order round the ring, in turns between images "
+                f"(under {reconstruct.RING_ORDER_TOLERANCE_STEPS:g} needed) "
+                + ", ".join(f"{attempt['ring_order_error_steps']:.2f}" for attempt in attempts)
+                + "; the image order kept (needed) "
+                + ", ".join("yes" if attempt["ring_order_kept"] else "no" for attempt in attempts)
+                + f"; nor with at most {reconstruct.MAX_RING_OUTLIER_SHARE:.0%} of a model's cameras taken out"
+            )
     result.report.settings["mapper_attempts"] = attempts
     result.write(part)
     write_status_json(part / STATUS_FILE)
     files.move_into_place(part, out_dir)
     log.info("reconstruction: %s", json.dumps(result.report.to_dict()))
+
+
+def _without_ring_outliers(models, phase_deg, min_track: int) -> reconstruct.SparseReconstruction | None:
+    """Of the mapper's models ``(seed, model)`` that face outwards but failed the ring check, the one that needs fewest
+    cameras taken out to keep the image order (``ring_outliers``; the earliest seed of equals), with those cameras taken
+    out and the rest adjusted again; ``None`` where none will do, or where the adjusted model faces inwards or leaves
+    the order after all. Logged as a warning: the images taken out get no observations from this model."""
+    chosen = None
+    for seed, model in models:
+        outliers = ring_outliers(model, phase_deg)
+        if outliers is not None and (chosen is None or len(outliers) < len(chosen[2])):
+            chosen = (seed, model, outliers)
+    if chosen is None:
+        return None
+    seed, model, outliers = chosen
+    kept = model.without_images(outliers, seed=seed)
+    fraction, ring = outward_fraction(kept, min_track), ring_order(kept, phase_deg)
+    log.warning(
+        "no mapper seed gave a sound ring; seed %d's model keeps the image order with images %s taken out (%d of %d "
+        "registered): adjusted again, the rest %.2f turns between images from their places at most, in order: %s, "
+        "outward fraction %.2f", seed, outliers.tolist(), len(outliers), model.report.n_images_registered, ring.error_steps,
+        "yes" if ring.order_kept else "no", fraction,
+    )
+    if fraction < 0.5 or not ring.sound:
+        return None
+    kept.report.settings["ring_after_images_taken_out"] = {
+        "seed": int(seed), "outward_fraction": fraction, "ring_order_error_steps": ring.error_steps, "ring_order_kept": ring.order_kept,
+    }
+    return kept
 
 
 def register_stage(reconstruction_dir, shape_npz, settings: dict, out_npz, out_json) -> None:
