@@ -252,6 +252,9 @@ def test_images_taken_out_of_a_model_leave_a_copy_adjusted_and_reported_again():
     where the model had them) and a new report naming them; the model it came from is left as it was."""
     poses, intrinsics, points = synthetic_scene(n_points=40)
     model = synthetic_model(poses, intrinsics, points, pixel_noise=0.3, seed=2)
+    for index in range(N_IMAGES):  # the first point seen in images 3 and 5 only: it goes with image 3
+        if index not in (3, 5):
+            model.delete_observation(index + 1, 0)
     prior_centres, _ = true_centres_by_image_id(poses, noise_m=0.05, seed=4)
     report = rc.model_report(model, len(poses), prior_centres, camera_position_sigma_m=0.05, tie_point_sigma_px=1.0, settings={"seed": 0})
     result = rc.SparseReconstruction(model, report, prior_centres)
@@ -260,7 +263,8 @@ def test_images_taken_out_of_a_model_leave_a_copy_adjusted_and_reported_again():
     assert list(kept.registered_indices) == [index for index in range(N_IMAGES) if index not in (3, 7)]
     assert kept.report.n_images_registered == N_IMAGES - 2 and kept.report.n_images == N_IMAGES
     assert kept.report.settings == {"seed": 0, "images_taken_out": [3, 7]}
-    assert kept.report.n_observations == len(points) * (N_IMAGES - 2)  # the two images' observations went with them
+    assert kept.report.n_observations == (len(points) - 1) * (N_IMAGES - 2)  # the two images' observations went with them
+    assert kept.report.n_points3d == len(points) - 1 and result.report.n_points3d == len(points)
     assert kept.report.world_frame == "body" and kept.report.cam_pos_rms_m is not None
     assert kept.report.cam_pos_rms_m != report.cam_pos_rms_m  # adjusted again: the priors of ten cameras, not twelve
     assert rc.rms(np.array([kept.camera_centres()[index] - before[index] for index in kept.registered_indices])) < 0.01 * DISTANCE_M
