@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Benchmark one step of the mesh fit (``mesh_light.fit_mesh_light``): the damped normal equations' solve.
+"""Benchmark one step of the mesh fit (``mesh_light.fit_mesh_light``): the normal matrix's assembly and the damped solve.
 
 Rule ``mesh_light`` is the workflow's largest stage (about half of its
 job-seconds), and most of each of its fits goes into eight solves of a system
@@ -7,7 +7,16 @@ the size of the surface's vertices. This script builds that system at the
 size of a paper set's fit (by default a geodesic sphere of 163,842 vertices,
 2,936 cells, 36 images on the equator, about 2 million samples of 1 %
 noise; the matrix is the Jacobian's column-scaled normal matrix, assembled as
-the fit assembles it) and solves one damped step, in this one process, with
+the fit assembles it). In this one process it assembles the normal matrix J'J + P'P with
+
+- ``J.T @ J``: scipy's sparse product, the priors' matrix added, as the fit
+  assembled it before (its pattern found again at every step);
+- ``assembly``: ``mesh_light._NormalMatrix``, sums of products by face, by
+  face and image, and by image, put into a pattern made once per cast (timed
+  apart);
+
+and prints their seconds (best of ``--repeats``), ratio and how far the two
+matrices differ. Then it solves one damped step with
 
 (a) ``whole LU``: one sparse LU of the whole system in COLAMD's order, as the
     fit solved it before;
@@ -37,6 +46,7 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 
 import numpy as np  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
 from scipy.sparse.linalg import splu  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
@@ -93,10 +103,15 @@ def step_system(subdivisions: int, seed: int):
     ])
     state = mesh_light._State(np.zeros(problem.nv), np.full(problem.ncell, -1.2), 0.8, np.zeros(problem.ncell), light, np.zeros(N_IMAGES))
     r, prior_r, J = mesh_light._residuals(problem, samples, state, rotations, jacobian=True)
-    colnorm = np.sqrt(np.bincount(samples.columns.ravel(), weights=J.data**2, minlength=problem.n_par) + problem.prior_colsq)
-    colnorm[colnorm == 0] = 1.0
+    normal, colnorm = mesh_light._NormalMatrix(problem, samples).scaled(J.data)
     gradient = -(J.T @ r + problem.prior.T @ prior_r) / colnorm
-    return mesh_light._scaled_normal(J, problem.prior_normal, 1 / colnorm), gradient, problem, len(face)
+    return normal, gradient, problem, samples, J
+
+
+def product_normal(J, prior_normal):
+    """The normal matrix as the fit assembled it before: scipy's product of J' and J (its pattern found again at every
+    step), the priors' added, every diagonal entry stored, in CSC."""
+    return (J.T @ J + prior_normal + sp.identity(J.shape[1], format="csr") * 0.0).tocsc()
 
 
 def whole_lu(normal, gradient, damping):
@@ -113,9 +128,18 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args(argv)
-    normal, gradient, problem, n_samples = step_system(args.subdivisions, args.seed)
+    normal, gradient, problem, samples, J = step_system(args.subdivisions, args.seed)
     print(f"system: {problem.n_par} unknowns ({problem.nv} heights, {problem.ncell} cells, {3 + problem.n_images} shared), "
-          f"{n_samples} samples, {normal.nnz} stored entries")
+          f"{len(samples.face)} samples, {normal.nnz} stored entries")
+    # The normal matrix, unscaled: scipy's product against the fit's assembly (its pattern made once per cast, timed apart).
+    t_product, by_product = best_of(args.repeats, lambda: product_normal(J, problem.prior_normal))
+    t_pattern, assembly = best_of(args.repeats, lambda: mesh_light._NormalMatrix(problem, samples))
+    t_assembly, assembled = best_of(args.repeats, lambda: assembly(J.data))
+    differ = abs(by_product - assembled).max() / abs(by_product).max()
+    print(f"{'normal matrix':14s} {'seconds':>8s}")
+    print(f"{'J.T @ J':14s} {t_product:8.2f}")
+    print(f"{'assembly':14s} {t_assembly:8.2f}   (its pattern, once per cast: {t_pattern:.2f} s)")
+    print(f"ratio J.T @ J / assembly: {t_product / t_assembly:.2f}; the two matrices differ by {differ:.1e} of the largest entry")
     t_whole, (y_whole, fill) = best_of(args.repeats, lambda: whole_lu(normal, gradient, DAMPING))
     t_new, y_new = best_of(args.repeats, lambda: mesh_light._solve(normal, gradient, DAMPING, problem.order))
     t_order, _ = best_of(args.repeats, lambda: problem._elimination_order(problem.F))
@@ -127,7 +151,7 @@ def main(argv=None):
     print(f"{'whole LU':12s} {t_whole:8.2f} {fill:11d}")
     print(f"{'dissection':12s} {t_new:8.2f} {lu.L.nnz + lu.U.nnz:11d}   (its order, once per fit: {t_order:.2f} s)")
     print(f"ratio whole LU / dissection: {t_whole / t_new:.2f}; steps apart by {apart:.1e} of the step's largest entry")
-    return t_whole / t_new, apart
+    return t_whole / t_new, apart, t_product / t_assembly, differ
 
 
 if __name__ == "__main__":

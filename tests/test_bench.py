@@ -93,3 +93,14 @@ def test_shot_noise_bench_keeps_the_inverse_cdf_counts(capsys):
     ratio, changed = module.main(["--images", "2", "--repeats", "1"])
     assert ratio > 0 and max(changed["inverse_cdf"]) < 1e-3
     assert "inverse_cdf" in capsys.readouterr().out
+
+
+def test_mesh_step_bench_assemblies_and_solvers_agree():
+    """bench/bench_mesh_step.py on a small sphere: scipy's J'J and the fit's assembly give the same matrix, and the two
+    solvers the same step."""
+    spec = importlib.util.spec_from_file_location("bench_mesh_step", BENCH.parent / "bench_mesh_step.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    _, steps_apart, _, matrices_apart = module.main(["--subdivisions", "3", "--repeats", "1"])
+    assert matrices_apart < 1e-12
+    assert steps_apart < 1e-8

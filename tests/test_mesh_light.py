@@ -220,24 +220,51 @@ def test_gate_skips_a_k_near_one_half():
     assert "below" in mesh_light_skipped(_pure(float("nan")))
 
 
-def test_scaled_normal_is_the_damped_system_of_the_scaled_jacobian():
-    """The step's matrix, assembled as S (J'J + P'P) S with the damping on its diagonal, is (JS)'(JS) + (PS)'(PS) + damping I."""
+def _sphere_samples(problem, triangles, n_images: int, rng, per_face: int = 3):
+    """Samples on every face of a sphere's mesh from ``n_images`` views about the equator, with their Jacobian columns."""
+    face = np.repeat(np.arange(len(triangles)), per_face)
+    image = rng.integers(0, n_images, len(face))
+    angles = 2 * np.pi * image / n_images
+    view = np.column_stack([np.sin(angles), np.zeros(len(face)), np.cos(angles)])
+    samples = mesh_light._Samples(face, image, view, rng.normal(-1.0, 0.05, len(face)), np.full(len(face), 0.05))
+    cell = problem.cell[face]
+    samples.columns = np.column_stack([triangles[face], problem.o_a + cell, np.full(len(face), problem.o_k), problem.o_dk + cell,
+                                       np.full(len(face), problem.o_l), np.full(len(face), problem.o_l + 1), problem.o_g + image])
+    return samples
+
+
+def test_normal_matrix_is_the_jacobians_and_the_priors():
+    """The step's matrix, assembled from sums of products by face, by face and image and by image on a pattern made once,
+    is J'J + P'P; scaled by its columns' norms, with the damping on its diagonal, it is (JS)'(JS) + (PS)'(PS) + damping I;
+    and the same pattern serves another Jacobian of the same samples."""
     import scipy.sparse as sp
 
     rng = np.random.default_rng(3)
-    n = 40
-    J = sp.random(500, n, density=0.1, random_state=4, format="csr")
-    P = sp.random(60, n, density=0.05, random_state=5, format="csr")
-    P = sp.vstack([P, sp.identity(n, format="csr") * 0.5]).tocsr()
-    scale = rng.uniform(0.5, 2.0, n)
-    gradient = rng.normal(size=n)
-    normal = mesh_light._scaled_normal(J, (P.T @ P).tocsr(), scale)
-    S = sp.diags(scale)
-    expected = ((J @ S).T @ (J @ S) + (P @ S).T @ (P @ S)).toarray() + 1e-3 * np.eye(n)
-    order = rng.permutation(n)  # the elimination order changes the arithmetic, not the step
-    np.testing.assert_allclose(mesh_light._solve(normal, gradient, 1e-3, order), np.linalg.solve(expected, gradient), rtol=1e-9, atol=1e-12)
-    # The damping is added to a copy: the matrix is the same for the next attempt.
-    np.testing.assert_allclose(normal.toarray() + 1e-3 * np.eye(n), expected, rtol=1e-12, atol=1e-14)
+    vertices, triangles = _geodesic_sphere(2)
+    problem = mesh_light._MeshProblem(vertices, triangles, vertices.copy(), 0.05, 5, 0.02, mesh_light.MeshLightSettings(cell_px=4.0))
+    assert problem.ncell > 3
+    samples = _sphere_samples(problem, triangles, 5, rng)
+    keep = rng.uniform(size=len(samples.face)) < 0.6  # some faces unseen, some by one image only
+    samples = mesh_light._Samples(samples.face[keep], samples.image[keep], samples.view[keep], samples.log_brightness[keep], samples.sigma[keep], samples.columns[keep])
+    normal_matrix = mesh_light._NormalMatrix(problem, samples)
+    for _ in range(2):
+        values = rng.normal(size=samples.columns.size)
+        J = sp.csr_matrix((values, samples.columns.ravel(), np.arange(0, values.size + 1, 9)), shape=(len(samples.face), problem.n_par))
+        expected = (J.T @ J + problem.prior.T @ problem.prior).toarray()
+        normal = normal_matrix(values)
+        assert isinstance(normal, sp.csc_matrix)
+        np.testing.assert_allclose(normal.toarray(), expected, rtol=1e-12, atol=1e-12)
+        scaled, norms = normal_matrix.scaled(values)
+        np.testing.assert_allclose(norms, np.sqrt(np.where(np.diag(expected) > 0, np.diag(expected), 1.0)), rtol=1e-12)
+        S = np.diag(1 / norms)
+        gradient = rng.normal(size=problem.n_par)
+        order = rng.permutation(problem.n_par)  # the elimination order changes the arithmetic, not the step
+        damped = S @ expected @ S + 1e-3 * np.eye(problem.n_par)
+        np.testing.assert_allclose(mesh_light._solve(scaled, gradient, 1e-3, order), np.linalg.solve(damped, gradient), rtol=1e-8, atol=1e-10)
+        # The damping is added to a copy: the matrix is the same for the next attempt.
+        np.testing.assert_allclose(scaled.toarray() + 1e-3 * np.eye(problem.n_par), damped, rtol=1e-12, atol=1e-14)
+    # Every diagonal entry is stored, an unseen vertex's too (its height held by the priors alone).
+    assert np.all(normal_matrix.row[normal_matrix.diagonal] == np.arange(problem.n_par))
 
 
 def _geodesic_sphere(subdivisions: int):
@@ -264,19 +291,11 @@ def test_elimination_order_dissects_the_surface(cell_px, of_colamd):
     cells = np.arange(problem.ncell)
     np.testing.assert_array_equal(np.abs(position[problem.o_dk + cells] - position[problem.o_a + cells]), 1)
     # The step's matrix: samples on every face from six views around the equator.
-    rng = np.random.default_rng(2)
-    face = np.repeat(np.arange(len(triangles)), 3)
-    image = rng.integers(0, 6, len(face))
-    angles = 2 * np.pi * image / 6
-    view = np.column_stack([np.sin(angles), np.zeros(len(face)), np.cos(angles)])
-    samples = mesh_light._Samples(face, image, view, rng.normal(-1.0, 0.05, len(face)), np.full(len(face), 0.05))
-    cell = problem.cell[face]
-    samples.columns = np.column_stack([triangles[face], problem.o_a + cell, np.full(len(face), problem.o_k), problem.o_dk + cell,
-                                       np.full(len(face), problem.o_l), np.full(len(face), problem.o_l + 1), problem.o_g + image])
+    samples = _sphere_samples(problem, triangles, 6, np.random.default_rng(2))
     rotations = np.array([np.eye(3)] * 6)
     state = mesh_light._State(np.zeros(problem.nv), np.zeros(problem.ncell), 0.8, np.zeros(problem.ncell), _light(0.0), np.zeros(6))
     _, _, J = mesh_light._residuals(problem, samples, state, rotations, jacobian=True)
-    normal = mesh_light._scaled_normal(J, problem.prior_normal, np.ones(problem.n_par))
+    normal = mesh_light._NormalMatrix(problem, samples)(J.data)
     normal.setdiag(normal.diagonal() + 1.0)
 
     def fill(matrix, spec):

@@ -23,6 +23,11 @@ from asteroid_photometry.world.shape import get_shape_model_spec
 from asteroid_photometry.experiments.mismatch import model_sets
 from asteroid_photometry.experiments.table2 import stage_settings
 from asteroid_photometry.core.footprint import estimate_footprint, footprint_warnings
+from asteroid_photometry.core.allocator import with_allocator_env
+
+# Every job this process starts inherits its environment: large arrays reused instead of mapped afresh
+# (asteroid_photometry/core/allocator.py; a value the user set wins).
+with_allocator_env()
 
 try:
     config.update(validate_config(config))

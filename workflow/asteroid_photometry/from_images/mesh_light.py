@@ -58,6 +58,8 @@ SHADOW_OFFSET_PX = 0.035
 #: Damping floor of Levenberg-Marquardt (of the column-scaled system) and attempts per step.
 MIN_DAMPING = 1e-6
 MAX_ATTEMPTS = 6
+#: A sample's Jacobian columns fixed by its face (``_Samples.columns``: heights, albedo, k, k offset, light); the last is its image's gain.
+FACE_SLOTS = 8
 #: The log gains' prior sigma where the mission states no calibration scatter (the gains held at one).
 GAINS_HELD = 1e-6
 
@@ -139,7 +141,6 @@ class _MeshProblem:
         # The priors are linear in the unknowns: one fixed matrix, its residual that matrix times the unknowns.
         self.prior = sp.csr_matrix((vals, (rows, cols)), shape=(self.nv + ne + nc + ni + 1, self.n_par))
         self.prior_normal = (self.prior.T @ self.prior).tocsr()
-        self.prior_colsq = np.asarray(self.prior.multiply(self.prior).sum(axis=0)).ravel()
         self.order = self._elimination_order(triangles)
 
     def _elimination_order(self, triangles) -> np.ndarray:
@@ -186,6 +187,17 @@ class _Samples:
     # a sample's value the PSF-weighted sum of its support pixels' brightness (``blur``, samples x support).
     support: _Pixels | None = None
     blur: sp.csr_matrix | None = None
+
+
+def _compact(labels, n_labels: int):
+    """Each of ``labels`` (integers in [0, ``n_labels``)) numbered among those present, in increasing order, and the
+    position of each present label's first occurrence."""
+    present = np.zeros(n_labels, bool)
+    present[labels] = True
+    number = np.cumsum(present) - 1
+    first = np.empty(n_labels, np.int64)
+    first[labels[::-1]] = np.arange(len(labels) - 1, -1, -1)  # the last write wins: the first occurrence
+    return number[labels], first[present]
 
 
 def _blur_matrix(psf: np.ndarray, sample_pixel, support_pixel, shape) -> sp.csr_matrix:
@@ -461,14 +473,13 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
             state.log_albedo = np.where(counts > 0, np.bincount(cells, weights=r * samples.sigma, minlength=problem.ncell) / np.maximum(counts, 1), 0.0)
         # The state's evaluation, kept from the step that accepted it.
         current = _evaluate(problem, samples, state, rotations)
+        normal_matrix = _NormalMatrix(problem, samples)
         for _ in range(settings.inner):
             r, prior_r = current.residuals, current.prior
             J = _jacobian(problem, samples, state, current, rotations)
             cost = current.cost
-            colnorm = np.sqrt(np.bincount(samples.columns.ravel(), weights=J.data**2, minlength=problem.n_par) + problem.prior_colsq)
-            colnorm[colnorm == 0] = 1.0
+            normal, colnorm = normal_matrix.scaled(J.data)
             gradient = -(J.T @ r + problem.prior.T @ prior_r) / colnorm
-            normal = _scaled_normal(J, problem.prior_normal, 1 / colnorm)
             del J
             for _attempt in range(MAX_ATTEMPTS):
                 y = _solve(normal, gradient, damping, problem.order)
@@ -485,14 +496,86 @@ def fit_mesh_light(vertices, triangles, camera_centres: dict, body_to_camera: di
     return MeshLight(state.light, float(state.k), state.log_gains, indices, n_samples, problem.nv, steps, np.array(costs), problem.surface(state.h)[0], problem.F)
 
 
-def _scaled_normal(J, prior_normal, scale) -> sp.csc_matrix:
-    """The column-scaled normal matrix S (J'J + P'P) S, S = diag(``scale``), in CSC with every diagonal entry stored."""
-    normal = (J.T @ J + prior_normal + sp.identity(J.shape[1], format="csr") * 0.0).tocsc()
-    normal.sort_indices()
-    # Scaled in place: each stored entry (i, j) by scale[i] * scale[j] (CSC: i is the row index, j the column).
-    columns = np.repeat(np.arange(normal.shape[1]), np.diff(normal.indptr))
-    normal.data *= scale[normal.indices] * scale[columns]
-    return normal
+class _NormalMatrix:
+    """The normal matrix J'J + P'P of one cast's samples (Jacobian ``J``, priors ``P``), assembled at every step from
+    the Jacobian's values on a pattern made once per cast.
+
+    A sample's first ``FACE_SLOTS`` columns (``_Samples.columns``: its face's three heights, its cell's albedo, the
+    body's k, its cell's k offset, the light's two angles) are fixed by its face, the last (its image's gain) by its
+    image. So J'J is made of sums of products of a sample's values: for every face, of two of its first eight; for
+    every column and image, of the gain's and that column's; for every image, of the gain's squares. Each is one
+    ``bincount`` over the samples, and the sums go into the matrix's upper triangle through an index made once a cast,
+    then mirrored. scipy's product of J' and J, which finds the pattern again at every step, took about four times as
+    long (bench/bench_mesh_step.py)."""
+
+    def __init__(self, problem: _MeshProblem, samples: _Samples):
+        n, n_images = problem.n_par, problem.n_images
+        self.n, self.n_images, self.image = n, n_images, samples.image
+        self.face_of, first = _compact(samples.face, len(problem.F))
+        face_columns = samples.columns[first, :FACE_SLOTS]
+        self.n_faces = len(first)
+        self.pairs = [(p, q) for p in range(FACE_SLOTS) for q in range(p, FACE_SLOTS)]
+        # The gain's products with a column every sample shares (k, the light) are summed by image, the others by that
+        # column and the image (``targets``: each sample's, numbered among those present).
+        self.shared = [p for p in range(FACE_SLOTS) if np.all(face_columns[:, p] == face_columns[0, p])]
+        self.by_target = [p for p in range(FACE_SLOTS) if p not in self.shared]
+        self.targets, target_rows, target_gains = [], [], []
+        for p in self.by_target:
+            column = samples.columns[:, p]
+            target, first = _compact(column * n_images + samples.image, n * n_images)
+            self.targets.append((target, len(first)))
+            target_rows.append(column[first])
+            target_gains.append(problem.o_g + samples.image[first])
+        images = problem.o_g + np.arange(n_images)
+        prior = sp.triu(problem.prior_normal, format="coo")
+        self.prior_values = np.concatenate([prior.data, np.zeros(n)])  # every diagonal entry stored, for the damping
+        # Where each sum goes: its entry of the upper triangle, numbered part by part, then over all parts.
+        parts = [*((face_columns[:, p], face_columns[:, q]) for p, q in self.pairs), *zip(target_rows, target_gains),
+                 *((np.full(n_images, face_columns[0, p]), images) for p in self.shared), (images, images), (prior.row, prior.col),
+                 (np.arange(n), np.arange(n))]
+        keys, inverses = [], []
+        for rows, cols in parts:
+            part_keys, inverse = np.unique(np.minimum(rows, cols).astype(np.int64) * n + np.maximum(rows, cols), return_inverse=True)
+            keys.append(part_keys)
+            inverses.append(inverse.ravel())
+        starts = np.cumsum([0, *(len(k) for k in keys[:-1])])
+        keys, slot = np.unique(np.concatenate(keys), return_inverse=True)
+        self.slot = np.concatenate([slot.ravel()[start + inverse] for start, inverse in zip(starts, inverses)])
+        self.n_upper = len(keys)
+        upper_row, upper_col = np.divmod(keys, n)
+        # The whole matrix's pattern, each stored entry's value one more than the index of its upper-triangle sum (exact
+        # in float64; none zero, which a sum of matrices would drop).
+        upper = sp.csr_matrix((np.arange(1, self.n_upper + 1, dtype=float), upper_col, np.concatenate([[0], np.cumsum(np.bincount(upper_row, minlength=n))])), shape=(n, n))
+        whole = (upper + sp.triu(upper, k=1, format="csr").T).tocsr()
+        whole.sort_indices()
+        self.source = whole.data.astype(np.int64) - 1
+        self.col, self.indptr = whole.indices, whole.indptr
+        self.row = np.repeat(np.arange(n), np.diff(whole.indptr))
+        self.diagonal = np.flatnonzero(self.row == self.col)
+
+    def __call__(self, jacobian_values) -> sp.csc_matrix:
+        """The normal matrix at the Jacobian's values (its CSR ``data``, ``FACE_SLOTS + 1`` a sample), in CSC with every
+        diagonal entry stored."""
+        values = jacobian_values.reshape(-1, FACE_SLOTS + 1).T.copy()
+        gain = values[FACE_SLOTS]
+        sums = np.concatenate([
+            *(np.bincount(self.face_of, values[p] * values[q], minlength=self.n_faces) for p, q in self.pairs),
+            *(np.bincount(target, values[p] * gain, minlength=n_targets) for p, (target, n_targets) in zip(self.by_target, self.targets)),
+            *(np.bincount(self.image, values[p] * gain, minlength=self.n_images) for p in self.shared),
+            np.bincount(self.image, gain * gain, minlength=self.n_images), self.prior_values,
+        ])
+        data = np.bincount(self.slot, sums, minlength=self.n_upper)[self.source]
+        # Symmetric: its rows' (CSR) arrays are its columns' (CSC).
+        return sp.csc_matrix((data, self.col, self.indptr), shape=(self.n, self.n))
+
+    def scaled(self, jacobian_values) -> tuple[sp.csc_matrix, np.ndarray]:
+        """The normal matrix scaled by its columns' norms, S (J'J + P'P) S with S = diag(1 / norms), so that the damping
+        treats every unknown alike; and the norms (1 for an empty column)."""
+        normal = self(jacobian_values)
+        norms = np.sqrt(normal.data[self.diagonal])
+        norms[norms == 0] = 1.0
+        normal.data /= norms[self.row] * norms[self.col]
+        return normal, norms
 
 
 def _solve(normal: sp.csc_matrix, gradient, damping: float, order: np.ndarray):
