@@ -5,12 +5,14 @@ glibc's malloc gives every block of 32 MiB or more (less, by default) its own
 array of that size starts from untouched pages and pays a page fault every
 4 KiB. The Table 2 stages build and drop arrays of hundreds of megabytes at
 every step (the mesh fit's Jacobian, normal matrix and blur; the
-refinement's samples), and on a 2-core machine those faults were a tenth to a
-sixth of a mesh fit's time (bench/bench_allocator.py). With ``mmap`` off for
-the heap and no trimming of its top, freed memory stays in the process and
-the next array reuses it. The answer is the same to the bit (the same
-arithmetic, other addresses); a job's peak memory is what its largest
-moment needs, as before, but the memory stays the job's until it ends.
+refinement's samples). With ``mmap`` off for the heap and no trimming of its
+top, freed memory stays in the process and the next array reuses it. On a
+2-core machine a mesh fit alone took 0.96 of its time and the refinement 0.93
+(bench/bench_allocator.py; four mesh fits of paper sets 0.92); the answer is
+the same to the bit (the same arithmetic, other addresses). The price is
+memory: a freed block stays the job's until it ends, and the heap fragments,
+so a full run's mesh fits peaked 1.09 to 1.50 times as high
+(docs/running.md, "How long it takes"); other stages within 1 %.
 
 The Snakefile sets these in its own environment, which every job it starts
 inherits (locally and through a cluster executor that passes the
