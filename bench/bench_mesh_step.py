@@ -12,7 +12,7 @@ the fit assembles it). In this one process it assembles the normal matrix J'J + 
 - ``J.T @ J``: scipy's sparse product, the priors' matrix added, as the fit
   assembled it before (its pattern found again at every step);
 - ``assembly``: ``mesh_light._NormalMatrix``, sums of products by face, by
-  face and image, and by image, put into a pattern made once per cast (timed
+  column and image, and by image, put into a pattern made once per cast (timed
   apart);
 
 and prints their seconds (best of ``--repeats``), ratio and how far the two
