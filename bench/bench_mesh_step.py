@@ -19,15 +19,19 @@ and prints their seconds (best of ``--repeats``), ratio and how far the two
 matrices differ. Then it solves one damped step with
 
 (a) ``whole LU``: one sparse LU of the whole system in COLAMD's order, as the
-    fit solved it before;
-(b) ``dissection``: ``mesh_light._solve``, the sparse LU in the problem's
-    elimination order (a nested dissection of the surface, the unknowns every
-    sample or every image's samples share last; made once per fit, timed
-    apart).
+    fit solved it before c033565;
+(b) ``dissection``: one double precision LU in the problem's elimination
+    order (a nested dissection of the surface, the unknowns every sample or
+    every image's samples share last; made once per fit, timed apart), as the
+    fit solved it until the single precision LU;
+(c) ``single + CG``: ``mesh_light._solve``, a single precision LU in that
+    order, the step refined in double precision by conjugate gradients with
+    that LU as the preconditioner.
 
-It prints the seconds of each (best of ``--repeats``), their ratio, the fill of
-each factorisation and how far the two steps lie apart (largest difference
-over the step's largest entry; they solve the same system, so round-off).
+It prints the seconds of each (best of ``--repeats``), the ratios of (a) and
+(b) to (c), the fill of each factorisation and how far the steps lie apart
+from (a)'s (largest difference over the step's largest entry; they solve the
+same system, so round-off).
 
     .venv/bin/python bench/bench_mesh_step.py                   # 163,842 vertices, ~1 min
     .venv/bin/python bench/bench_mesh_step.py --subdivisions 6  # 40,962 vertices
@@ -122,6 +126,16 @@ def whole_lu(normal, gradient, damping):
     return lu.solve(gradient), lu.L.nnz + lu.U.nnz
 
 
+def dissection_lu(normal, gradient, damping, order):
+    """The step as the fit solved it until the single precision LU: one double precision LU in the problem's order."""
+    damped = normal.copy()
+    damped.setdiag(damped.diagonal() + damping)
+    lu = splu(damped[order][:, order].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    y = np.empty_like(gradient)
+    y[order] = lu.solve(gradient[order])
+    return y, lu.L.nnz + lu.U.nnz
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--subdivisions", type=int, default=7, help="the geodesic sphere's subdivisions of an icosahedron; 7: 163,842 vertices, 6: 40,962")
@@ -141,16 +155,16 @@ def main(argv=None):
     print(f"{'assembly':14s} {t_assembly:8.2f}   (its pattern, once per cast: {t_pattern:.2f} s)")
     print(f"ratio J.T @ J / assembly: {t_product / t_assembly:.2f}; the two matrices differ by {differ:.1e} of the largest entry")
     t_whole, (y_whole, fill) = best_of(args.repeats, lambda: whole_lu(normal, gradient, DAMPING))
+    t_double, (y_double, dissected_fill) = best_of(args.repeats, lambda: dissection_lu(normal, gradient, DAMPING, problem.order))
     t_new, y_new = best_of(args.repeats, lambda: mesh_light._solve(normal, gradient, DAMPING, problem.order))
     t_order, _ = best_of(args.repeats, lambda: problem._elimination_order(problem.F))
-    damped = normal.copy()
-    damped.setdiag(damped.diagonal() + DAMPING)
-    lu = splu(damped[problem.order][:, problem.order].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    apart = np.abs(y_new - y_whole).max() / np.abs(y_whole).max()
+    apart = max(np.abs(y - y_whole).max() for y in (y_double, y_new)) / np.abs(y_whole).max()
     print(f"{'solver':12s} {'seconds':>8s} {'fill':>11s}")
     print(f"{'whole LU':12s} {t_whole:8.2f} {fill:11d}")
-    print(f"{'dissection':12s} {t_new:8.2f} {lu.L.nnz + lu.U.nnz:11d}   (its order, once per fit: {t_order:.2f} s)")
-    print(f"ratio whole LU / dissection: {t_whole / t_new:.2f}; steps apart by {apart:.1e} of the step's largest entry")
+    print(f"{'dissection':12s} {t_double:8.2f} {dissected_fill:11d}   (its order, once per fit: {t_order:.2f} s)")
+    print(f"{'single + CG':12s} {t_new:8.2f} {dissected_fill:11d}   (the same fill, in single precision)")
+    print(f"ratio whole LU / single + CG: {t_whole / t_new:.2f}, dissection / single + CG: {t_double / t_new:.2f}; "
+          f"steps apart by at most {apart:.1e} of the step's largest entry")
     return t_whole / t_new, apart, t_product / t_assembly, differ
 
 

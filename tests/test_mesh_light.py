@@ -267,6 +267,49 @@ def test_normal_matrix_is_the_jacobians_and_the_priors():
     assert np.all(normal_matrix.row[normal_matrix.diagonal] == np.arange(problem.n_par))
 
 
+def test_step_in_single_precision_is_refined_to_double(monkeypatch, caplog):
+    """The step from a single precision LU, refined by preconditioned conjugate gradients, is the double precision
+    solution on a system as ill-conditioned as the fit's (its damping 1e-6 against a unit diagonal), far closer than the
+    single precision LU alone; where the gradients cannot converge, the step falls back to a double precision LU."""
+    import logging
+
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    rng = np.random.default_rng(5)
+    n = 400
+    # A surface-like matrix: a grid's graph Laplacian (singular: a constant is free) with a few dense rows and columns
+    # (the shared unknowns) and a weak prior, scaled to a unit diagonal as the fit scales its columns.
+    side = 20
+    grid = sp.diags([-1.0, -1.0, -1.0, -1.0], [-side, -1, 1, side], shape=(n, n), format="lil")
+    for i in range(side, n, side):
+        grid[i, i - 1] = grid[i - 1, i] = 0.0
+    grid = grid.tocsc()
+    laplacian = sp.diags(-np.asarray(grid.sum(axis=1)).ravel()) + grid
+    dense = rng.normal(size=(n, 3)) * 0.05
+    matrix = sp.csc_matrix(laplacian + sp.csc_matrix(dense @ dense.T) + 1e-4 * sp.eye(n))
+    norms = np.sqrt(matrix.diagonal())
+    scaled = sp.csc_matrix(sp.diags(1 / norms) @ matrix @ sp.diags(1 / norms))
+    gradient = rng.normal(size=n)
+    order = rng.permutation(n)
+    damping = 1e-6
+    damped = scaled.toarray() + damping * np.eye(n)
+    expected = np.linalg.solve(damped, gradient)
+    assert np.linalg.cond(damped) > 1e3
+    step = mesh_light._solve(scaled, gradient, damping, order)
+    error = np.linalg.norm(step - expected) / np.linalg.norm(expected)
+    single = splu(sp.csc_matrix(damped, dtype=np.float32), permc_spec="NATURAL", diag_pivot_thresh=0.0).solve(gradient.astype(np.float32))
+    single_error = np.linalg.norm(single - expected) / np.linalg.norm(expected)
+    assert error < 1e-10 < 1e-3 * single_error
+    # A residual out of reach: the double precision LU's step, and the log says so.
+    monkeypatch.setattr(mesh_light, "STEP_RTOL", 1e-30)
+    monkeypatch.setattr(mesh_light, "STEP_MAX_ITERATIONS", 3)
+    with caplog.at_level(logging.INFO, logger=mesh_light.log.name):
+        fallback = mesh_light._solve(scaled, gradient, damping, order)
+    assert "made in double precision" in caplog.text
+    np.testing.assert_allclose(fallback, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+
+
 def _geodesic_sphere(subdivisions: int):
     mesh = o3d.geometry.TriangleMesh.create_icosahedron(radius=1.0).subdivide_midpoint(number_of_iterations=subdivisions)
     vertices = np.asarray(mesh.vertices) / np.linalg.norm(np.asarray(mesh.vertices), axis=1, keepdims=True)
