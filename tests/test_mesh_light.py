@@ -310,6 +310,21 @@ def test_step_in_single_precision_is_refined_to_double(monkeypatch, caplog):
     np.testing.assert_allclose(fallback, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
 
 
+def test_step_falls_back_where_single_precision_cannot_hold_a_pivot(caplog):
+    """A pivot below single precision's range (here 1e-50, zero as a float32) makes its LU singular: the step is the
+    double precision LU's."""
+    import logging
+
+    import scipy.sparse as sp
+
+    normal = sp.csc_matrix(np.diag([0.0, 1.0, 2.0]))
+    gradient = np.array([1e-50, 1.0, 1.0])
+    with caplog.at_level(logging.INFO, logger=mesh_light.log.name):
+        step = mesh_light._solve(normal, gradient, 1e-50, np.array([2, 0, 1]))
+    assert "made in double precision" in caplog.text
+    np.testing.assert_allclose(step, [1.0, 1.0, 0.5], rtol=1e-12)
+
+
 def _geodesic_sphere(subdivisions: int):
     mesh = o3d.geometry.TriangleMesh.create_icosahedron(radius=1.0).subdivide_midpoint(number_of_iterations=subdivisions)
     vertices = np.asarray(mesh.vertices) / np.linalg.norm(np.asarray(mesh.vertices), axis=1, keepdims=True)
