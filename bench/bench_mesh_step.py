@@ -130,7 +130,7 @@ def dissection_lu(normal, gradient, damping, order):
     """The step as the fit solved it until the single precision LU: one double precision LU in the problem's order."""
     damped = normal.copy()
     damped.setdiag(damped.diagonal() + damping)
-    lu = splu(damped[order][:, order].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    lu = mesh_light._lu(damped[order][:, order].tocsc())
     y = np.empty_like(gradient)
     y[order] = lu.solve(gradient[order])
     return y, lu.L.nnz + lu.U.nnz

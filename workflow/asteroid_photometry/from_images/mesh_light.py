@@ -585,7 +585,8 @@ def _solve(normal: sp.csc_matrix, gradient, damping: float, order: np.ndarray):
 
     The LU is made in single precision, then the step is found in double precision by conjugate gradients with that LU
     as the preconditioner, to ``STEP_RTOL`` of the gradient (four to six iterations on the paper's sets). Should they
-    not get there in ``STEP_MAX_ITERATIONS``, the LU is made again in double precision."""
+    not get there in ``STEP_MAX_ITERATIONS``, or the single precision factors be singular, the LU is made again in
+    double precision."""
     damped = normal.copy()
     damped.setdiag(damped.diagonal() + damping)
     system, rhs = damped[order][:, order].tocsc(), gradient[order]
@@ -611,8 +612,9 @@ def _lu(system: sp.csc_matrix):
 
 def _preconditioned_step(system: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray | None:
     """``system``'s solution for ``rhs`` by conjugate gradients preconditioned by its single precision LU, or None where
-    they do not converge or the single precision factors are singular (a pivot below its range). On a paper set's step (40,000 unknowns, 26 million entries in the factors) the single precision
-    LU takes 1.0 s against 1.6 s, and half the memory; the solution agrees with the double precision LU's to 5e-12."""
+    they do not converge or the single precision factors are singular (a pivot below its range). On a paper set's step
+    (40,000 unknowns, 26 million entries in the factors) the single precision LU takes 1.0 s against 1.6 s, its values
+    half the memory; the solution agrees with the double precision LU's to 5e-12."""
     try:
         lu = _lu(system.astype(np.float32))
     except RuntimeError:  # SuperLU: "Factor is exactly singular"
