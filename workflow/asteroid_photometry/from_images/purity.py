@@ -44,7 +44,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2 as chi2_law
+from scipy.special import chdtri
 
 from asteroid_photometry.world.noise import SensorModel, observation_variance, saturated
 
@@ -143,7 +143,7 @@ def sample_pure(image: np.ndarray, uv: np.ndarray, variance=None, significance: 
 def _chi2_threshold(significance: float) -> float:
     """The chi-square that a pure sample exceeds with probability ``significance`` (the refinement asks it hundreds of
     times a set, at one significance)."""
-    return float(chi2_law.ppf(1.0 - significance, DEGREES_OF_FREEDOM))
+    return float(chdtri(DEGREES_OF_FREEDOM, significance))
 
 
 class PurityTest:

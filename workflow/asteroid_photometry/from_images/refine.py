@@ -84,7 +84,7 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2 as chi2_law
+from scipy.special import chdtri
 
 from asteroid_photometry.core import files
 from asteroid_photometry.estimation import angle_between_deg, fit_pooled_k, Observations
@@ -429,7 +429,7 @@ def noise_limited_residual(point_index, brightness, n_points: int, purity_test, 
     counts = np.bincount(point_index, minlength=n_points)
     mean = np.bincount(point_index, weights=brightness, minlength=n_points) / np.maximum(counts, 1)
     dof = np.maximum(counts - ONE_FACET_PARAMETERS, 1)
-    quantile = chi2_law.ppf(1.0 - RESIDUAL_SIGNIFICANCE, dof)
+    quantile = chdtri(dof, RESIDUAL_SIGNIFICANCE)
     with np.errstate(divide="ignore", invalid="ignore"):
         relative_var = purity_test.sample_variance(mean) / mean**2
         limit = np.sqrt(relative_var * quantile / np.maximum(counts, 1) + floor**2)

@@ -31,7 +31,6 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy.signal import fftconvolve
 from scipy.special import erf
 
 from asteroid_photometry.world.noise import SensorModel, apply_sensor_noise, sensor_from_config
@@ -143,6 +142,10 @@ def apply_psf(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
         raise ValueError(f"apply_psf: the kernel must be 2-D with odd sides (a centre pixel), got shape {kernel.shape}")
     if not np.all(np.isfinite(image)):
         raise ValueError("apply_psf: the image has NaN or infinite pixels")
+    # Imported here, not at the top: scipy.signal loads scipy.stats (about
+    # 0.4 s), and most jobs that import this module only need psf_kernel.
+    from scipy.signal import fftconvolve
+
     blurred = np.maximum(fftconvolve(image.astype(np.float64), kernel, mode="same"), 0.0)
     out_dtype = image.dtype if np.issubdtype(image.dtype, np.floating) else np.float64
     return blurred.astype(out_dtype, copy=False)
